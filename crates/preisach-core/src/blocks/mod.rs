@@ -1,0 +1,1 @@
+//! Plant blocks (DESIGN.md "Blocks"). In progress.

@@ -1,0 +1,77 @@
+//! The Everett table: `E(a, b)` = total mass of the cells with α-index < a and
+//! β-index >= b (MATH.md). One O(n_h²) pass; every staircase output is then a few
+//! lookups.
+
+use crate::grid::cell_index;
+
+/// 2-D prefix sums of the masses over the upper triangle, `(n_h + 1)²` entries.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Everett {
+    n1: usize,
+    table: Vec<f64>,
+}
+
+impl Everett {
+    /// Build from packed masses (see [`cell_index`]).
+    pub fn new(n_h: usize, masses: &[f64]) -> Self {
+        let n1 = n_h + 1;
+        let mut table = vec![0.0; n1 * n1];
+        // col[j] = C(b, j) = sum_{i=b..=j} w[i][j]; walk b downwards.
+        let mut col = vec![0.0; n_h];
+        for b in (0..n1).rev() {
+            if b < n_h {
+                for (j, c) in col.iter_mut().enumerate().skip(b) {
+                    *c += masses[cell_index(n_h, b, j)];
+                }
+            }
+            let mut acc = 0.0;
+            for a in 1..n1 {
+                acc += col[a - 1];
+                table[a * n1 + b] = acc;
+            }
+        }
+        Everett { n1, table }
+    }
+
+    /// `E(a, b)` at integer level indices (0 when a <= b).
+    #[inline(always)]
+    pub fn at(&self, a: u32, b: u32) -> f64 {
+        // Indices come from the staircase, which only holds levels 0..=n_h.
+        self.table[a as usize * self.n1 + b as usize]
+    }
+
+    /// `E` at continuous level coordinates: bilinear between the levels, i.e. each mass
+    /// spread uniformly over its cell (MATH.md, "The interpolated output").
+    #[inline]
+    pub fn bilinear(&self, a: f64, b: f64) -> f64 {
+        let n_h = self.n1 - 1;
+        let (ia, fa) = split(a, n_h);
+        let (ib, fb) = split(b, n_h);
+        let t = &self.table;
+        let r0 = ia * self.n1;
+        let r1 = r0 + self.n1;
+        let e00 = t[r0 + ib];
+        let e01 = t[r0 + ib + 1];
+        let e10 = t[r1 + ib];
+        let e11 = t[r1 + ib + 1];
+        let lo = e00 + fb * (e01 - e00);
+        let hi = e10 + fb * (e11 - e10);
+        lo + fa * (hi - lo)
+    }
+
+    /// Total mass `E(n_h, 0)`.
+    #[inline]
+    pub fn total(&self) -> f64 {
+        self.table[(self.n1 - 1) * self.n1]
+    }
+
+    pub fn n_h(&self) -> usize {
+        self.n1 - 1
+    }
+}
+
+#[inline(always)]
+fn split(x: f64, n_h: usize) -> (usize, f64) {
+    let i = (x as usize).min(n_h - 1);
+    (i, x - i as f64)
+}

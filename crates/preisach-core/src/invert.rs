@@ -1,0 +1,1 @@
+//! Inversion (seed §4): closest match, interpolation, continuous inverse. In progress.

@@ -1,0 +1,1 @@
+//! The 100 kHz sample loop. In progress.
