@@ -1,1 +1,242 @@
-//! placeholder until identification lands
+//! Identification (seed §3.2–3.3, done exactly): non-negative least squares on the
+//! masses with a free offset in one QP, over merged rows, with the paper's pitfalls
+//! reported.
+
+pub mod qp;
+pub mod rows;
+
+use crate::error::{check_scalar, check_signal, PreisachError, Result};
+use crate::grid::{cell_index, Grid};
+use crate::model::PreisachModel;
+pub use qp::{dense_bytes, Problem, Solution};
+pub use rows::{build_rows, Rows};
+
+/// Which exact solver to use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Solver {
+    /// The structured solver, except for small problems where the dense one is cheap.
+    Auto,
+    /// Dense QP over the masses (AᵀWA formed), clarabel.
+    Clarabel,
+    /// Sparse QP in Everett coordinates, clarabel; never forms the dense matrix.
+    Structured,
+}
+
+impl Solver {
+    pub fn parse(s: &str) -> Result<Self> {
+        match s {
+            "auto" => Ok(Solver::Auto),
+            "clarabel" => Ok(Solver::Clarabel),
+            "structured" => Ok(Solver::Structured),
+            _ => Err(PreisachError::invalid(
+                "solver",
+                format!("expected 'auto', 'clarabel' or 'structured', got {s:?}"),
+            )),
+        }
+    }
+}
+
+/// Options of [`fit`].
+#[derive(Debug, Clone)]
+pub struct FitOptions {
+    pub n_h: usize,
+    /// Model range; `None` = [`default_range`] of the input.
+    pub u_range: Option<(f64, f64)>,
+    pub reg: f64,
+    pub solver: Solver,
+    /// Fit the interpolated model (masses spread over their cells) instead of the
+    /// stepwise one.
+    pub interpolated: bool,
+}
+
+/// What the fit did and what to worry about.
+#[derive(Debug, Clone, Default)]
+pub struct FitReport {
+    /// RMSE of the fitted model on the training samples, output units.
+    pub rmse: f64,
+    pub n_samples: usize,
+    /// Distinct relay states (merged regression rows).
+    pub n_rows: usize,
+    /// Direction changes of the quantized input (what the relays see).
+    pub reversals: usize,
+    /// Cells whose relay never switched on (fixed to zero: the data says nothing).
+    pub cells_never_excited: usize,
+    /// Cells switched on but never off again (identified only in sums).
+    pub cells_switched_once: usize,
+    pub input_min: f64,
+    pub input_max: f64,
+    pub lo: f64,
+    pub hi: f64,
+    pub solver: &'static str,
+    pub iterations: u32,
+    /// The paper's pitfalls (§3.3) met by this data, as sentences.
+    pub warnings: Vec<String>,
+}
+
+/// Default model range: the input range shrunk by 0.5 % of its span on each side, so
+/// the input slightly exceeds the model range as the paper advises (§3.3, Fig. 7b:
+/// model [−90, 90] identified from input [−91, 91]).
+pub fn default_range(u: &[f64]) -> Result<(f64, f64)> {
+    check_signal("u", u)?;
+    let (mn, mx) = min_max(u);
+    if mx <= mn {
+        return Err(PreisachError::invalid("u", format!("input is constant ({mn}); it has no range to identify")));
+    }
+    let pad = 0.005 * (mx - mn);
+    Ok((mn + pad, mx - pad))
+}
+
+fn min_max(u: &[f64]) -> (f64, f64) {
+    u.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)))
+}
+
+/// Excitation statistics on the quantized levels: (reversals, never switched on,
+/// switched on but never off).
+fn excitation(q: &[u32], n_h: usize) -> (usize, usize, usize) {
+    let mut reversals = 0;
+    let mut dir = 0i8;
+    for w in q.windows(2) {
+        let d = (w[1] as i64 - w[0] as i64).signum() as i8;
+        if d != 0 {
+            if dir != 0 && d != dir {
+                reversals += 1;
+            }
+            dir = d;
+        }
+    }
+    // Cell (i, j) switches on when the level first reaches j + 1 and off when it later
+    // falls to i or below.
+    let n = q.len();
+    let mut suffix_min = vec![u32::MAX; n + 1];
+    for t in (0..n).rev() {
+        suffix_min[t] = suffix_min[t + 1].min(q[t]);
+    }
+    let mut first = vec![usize::MAX; n_h];
+    let mut reached = 0usize;
+    for (t, &k) in q.iter().enumerate() {
+        while reached < k as usize {
+            first[reached] = t;
+            reached += 1;
+        }
+    }
+    let mut never = 0;
+    let mut once = 0;
+    for (j, &t) in first.iter().enumerate() {
+        if t == usize::MAX {
+            never += j + 1;
+        } else {
+            let m = suffix_min[t + 1].min(j as u32 + 1) as usize;
+            once += m; // i < m never switched off again
+        }
+    }
+    (reversals, never, once)
+}
+
+/// Identify a model from input `u` and measured output `y`.
+pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, FitReport)> {
+    check_signal("u", u)?;
+    check_signal("y", y)?;
+    if u.len() != y.len() {
+        return Err(PreisachError::invalid(
+            "y",
+            format!("length {} does not match u (length {})", y.len(), u.len()),
+        ));
+    }
+    check_scalar("reg", opts.reg)?;
+    if opts.reg < 0.0 {
+        return Err(PreisachError::invalid("reg", format!("must be >= 0, got {}", opts.reg)));
+    }
+    let (lo, hi) = match opts.u_range {
+        Some(r) => r,
+        None => default_range(u)?,
+    };
+    let grid = Grid::new(lo, hi, opts.n_h)?;
+    let n_h = grid.n_h();
+    let (u_min, u_max) = min_max(u);
+
+    let q: Vec<u32> = u.iter().map(|&x| grid.quantize(x)).collect();
+    let (reversals, never, once) = excitation(&q, n_h);
+    // Cells never switched on: their column equals the offset's, so they are fixed to 0.
+    let top = if opts.interpolated {
+        grid.position(u_max).ceil() as usize
+    } else {
+        *q.iter().max().unwrap() as usize
+    };
+    let mut zero = vec![false; grid.n_q()];
+    for i in 0..n_h {
+        for j in i.max(top)..n_h {
+            zero[cell_index(n_h, i, j)] = true;
+        }
+    }
+
+    let rows = build_rows(&grid, u, y, opts.interpolated);
+    let mu = y.iter().sum::<f64>() / y.len() as f64;
+    let var = y.iter().map(|v| (v - mu) * (v - mu)).sum::<f64>() / y.len() as f64;
+    let scale = if var > 0.0 { var.sqrt() } else { mu.abs().max(1.0) };
+    let pb = Problem { rows: &rows, mu, scale, zero: &zero, reg: opts.reg };
+    let n_free = zero.iter().filter(|z| !**z).count();
+    let solver = match opts.solver {
+        Solver::Auto if n_free <= 600 => Solver::Clarabel,
+        Solver::Auto => Solver::Structured,
+        s => s,
+    };
+    let sol = match solver {
+        Solver::Clarabel => {
+            let need = dense_bytes(rows.n_rows(), n_free);
+            if need > 4e9 {
+                return Err(PreisachError::invalid(
+                    "n_h",
+                    format!(
+                        "{n_h} is too large for the dense solver ({:.1} GB needed); use solver='structured'",
+                        need / 1e9
+                    ),
+                ));
+            }
+            qp::solve_dense(&pb)?
+        }
+        _ => qp::solve_everett(&pb)?,
+    };
+    let model = PreisachModel::new(grid.clone(), sol.masses, sol.offset)?;
+
+    let mut pred = vec![0.0; u.len()];
+    if opts.interpolated {
+        model.run_interpolated(&mut model.interp_memory(), u, &mut pred);
+    } else {
+        model.run(&mut model.memory(), u, &mut pred);
+    }
+    let sse: f64 = pred.iter().zip(y).map(|(p, t)| (p - t) * (p - t)).sum();
+
+    let mut warnings = Vec::new();
+    if reversals < n_h {
+        warnings.push(format!(
+            "only {reversals} input reversals for n_h = {n_h}: fewer than n_h, so not every relay is switched on and off (seed §3.2); use more reversals or a smaller n_h"
+        ));
+    }
+    if u_max < hi || u_min > lo {
+        warnings.push(format!(
+            "the input range [{u_min:.4}, {u_max:.4}] does not exceed the model range [{lo:.4}, {hi:.4}]: border cells are not excited and absorb the offset (seed §3.3, Fig. 7a)"
+        ));
+    }
+    let span = hi - lo;
+    if u_max - hi > 0.1 * span || lo - u_min > 0.1 * span {
+        warnings.push(format!(
+            "the input range [{u_min:.4}, {u_max:.4}] extends far beyond the model range [{lo:.4}, {hi:.4}]: the end cells absorb everything outside it (seed §3.3, Fig. 7c)"
+        ));
+    }
+    let report = FitReport {
+        rmse: (sse / u.len() as f64).sqrt(),
+        n_samples: u.len(),
+        n_rows: rows.n_rows(),
+        reversals,
+        cells_never_excited: never,
+        cells_switched_once: once,
+        input_min: u_min,
+        input_max: u_max,
+        lo,
+        hi,
+        solver: if solver == Solver::Clarabel { "clarabel" } else { "structured" },
+        iterations: sol.iterations,
+        warnings,
+    };
+    Ok((model, report))
+}

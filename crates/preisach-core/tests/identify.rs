@@ -1,0 +1,152 @@
+mod common;
+
+use common::{random_input, random_model, Rng};
+use preisach_core::identify::{fit, FitOptions, Solver};
+use preisach_core::PreisachModel;
+
+/// First-order reversal curves on the level grid: from the bottom up to each level a,
+/// then down through every level to the bottom. Observes every Everett value.
+fn forc_input(model: &PreisachModel) -> Vec<f64> {
+    let g = model.grid();
+    let n = g.n_h();
+    let mut u = vec![g.lo() - 0.1];
+    for a in 1..=n {
+        for k in 0..=a {
+            u.push(g.level(k));
+        }
+        for k in (0..a).rev() {
+            u.push(g.level(k));
+        }
+    }
+    u.push(g.hi() + 0.05);
+    u
+}
+
+fn run(model: &PreisachModel, u: &[f64]) -> Vec<f64> {
+    let mut y = vec![0.0; u.len()];
+    model.run(&mut model.memory(), u, &mut y);
+    y
+}
+
+fn opts(model: &PreisachModel, solver: Solver) -> FitOptions {
+    let g = model.grid();
+    FitOptions { n_h: g.n_h(), u_range: Some((g.lo(), g.hi())), reg: 0.0, solver, interpolated: false }
+}
+
+fn max_rel_err(a: &PreisachModel, b: &PreisachModel) -> f64 {
+    let scale = a.masses().iter().cloned().fold(0.0, f64::max);
+    let m = a.masses().iter().zip(b.masses()).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+    m.max((a.offset() - b.offset()).abs()) / scale
+}
+
+#[test]
+fn identification_recovers_known_masses_and_offset_from_noise_free_data() {
+    let mut rng = Rng::new(11);
+    for solver in [Solver::Clarabel, Solver::Structured] {
+        let truth = random_model(&mut rng, 12);
+        let u = forc_input(&truth);
+        let y = run(&truth, &u);
+        let (m, rep) = fit(&u, &y, &opts(&truth, solver)).unwrap();
+        let err = max_rel_err(&truth, &m);
+        assert!(err <= 1e-6, "{solver:?}: relative error {err}");
+        assert_eq!(rep.cells_never_excited, 0);
+        assert!(rep.rmse < 1e-6 * truth.everett().total());
+    }
+}
+
+#[test]
+fn dense_and_structured_solvers_agree_on_noisy_data() {
+    let mut rng = Rng::new(12);
+    let truth = random_model(&mut rng, 15);
+    let u = random_input(&mut rng, 20_000);
+    let mut y = run(&truth, &u);
+    for v in y.iter_mut() {
+        *v += 0.05 * (rng.uniform() - 0.5);
+    }
+    let (a, ra) = fit(&u, &y, &opts(&truth, Solver::Clarabel)).unwrap();
+    let (b, rb) = fit(&u, &y, &opts(&truth, Solver::Structured)).unwrap();
+    // Same objective (the solution may be non-unique in directions the data never saw).
+    assert!((ra.rmse - rb.rmse).abs() <= 1e-6 * ra.rmse, "{} vs {}", ra.rmse, rb.rmse);
+    let pa = run(&a, &u);
+    let pb = run(&b, &u);
+    let d = pa.iter().zip(&pb).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+    assert!(d < 1e-4 * truth.everett().total(), "predictions differ by {d}");
+}
+
+#[test]
+fn regularization_smooths_the_weights() {
+    let mut rng = Rng::new(13);
+    let truth = random_model(&mut rng, 10);
+    let u = random_input(&mut rng, 5000);
+    let y = run(&truth, &u);
+    let rough = |m: &PreisachModel| {
+        let d = m.dense_weights();
+        let n = m.n_h();
+        let mut s = 0.0;
+        for i in 0..n {
+            for j in i..n - 1 {
+                s += (d[i * n + j] - d[i * n + j + 1]).powi(2);
+            }
+        }
+        s
+    };
+    let mut o = opts(&truth, Solver::Structured);
+    let (plain, _) = fit(&u, &y, &o).unwrap();
+    o.reg = 1.0;
+    let (smooth, _) = fit(&u, &y, &o).unwrap();
+    assert!(rough(&smooth) < 0.5 * rough(&plain));
+}
+
+#[test]
+fn interpolated_model_is_recovered_from_its_own_output() {
+    let mut rng = Rng::new(14);
+    let truth = random_model(&mut rng, 8);
+    let u = forc_input(&truth);
+    // Add off-level samples so the interpolation is exercised.
+    let mut uu = Vec::new();
+    for w in u.windows(2) {
+        uu.push(w[0]);
+        uu.push(0.5 * (w[0] + w[1]));
+    }
+    let mut y = vec![0.0; uu.len()];
+    truth.run_interpolated(&mut truth.interp_memory(), &uu, &mut y);
+    let mut o = opts(&truth, Solver::Structured);
+    o.interpolated = true;
+    let (m, _) = fit(&uu, &y, &o).unwrap();
+    assert!(max_rel_err(&truth, &m) <= 1e-6, "{}", max_rel_err(&truth, &m));
+}
+
+#[test]
+fn pitfalls_are_reported() {
+    let mut rng = Rng::new(15);
+    let truth = random_model(&mut rng, 20);
+    // Few reversals, input short of the model range.
+    let u: Vec<f64> = (0..2000).map(|t| 0.5 + 0.8 * (t as f64 * 0.01).sin()).collect();
+    let y = run(&truth, &u);
+    let (_, rep) = fit(&u, &y, &opts(&truth, Solver::Auto)).unwrap();
+    assert!(rep.warnings.iter().any(|w| w.contains("reversals")));
+    assert!(rep.warnings.iter().any(|w| w.contains("does not exceed")));
+    assert!(rep.cells_never_excited > 0);
+    let wide: Vec<f64> = u.iter().map(|x| (x - 0.5) * 4.0 + 0.5).collect();
+    let (_, rep) = fit(&wide, &run(&truth, &wide), &opts(&truth, Solver::Auto)).unwrap();
+    assert!(rep.warnings.iter().any(|w| w.contains("far beyond")));
+}
+
+#[test]
+fn bad_input_is_rejected_with_the_argument_named() {
+    let o = FitOptions { n_h: 5, u_range: None, reg: 0.0, solver: Solver::Auto, interpolated: false };
+    let e = fit(&[0.0, f64::NAN], &[0.0, 1.0], &o).unwrap_err().to_string();
+    assert!(e.starts_with("u:") && e.contains("NaN at index 1"), "{e}");
+    let e = fit(&[0.0, 1.0], &[0.0], &o).unwrap_err().to_string();
+    assert!(e.contains("y:") && e.contains("length"), "{e}");
+    let e = fit(&[], &[], &o).unwrap_err().to_string();
+    assert!(e.contains("empty"), "{e}");
+    let mut o2 = o.clone();
+    o2.n_h = 0;
+    assert!(fit(&[0.0, 1.0], &[0.0, 1.0], &o2).unwrap_err().to_string().starts_with("n_h:"));
+    o2.n_h = 100_000;
+    assert!(fit(&[0.0, 1.0], &[0.0, 1.0], &o2).unwrap_err().to_string().contains("too large"));
+    let mut o3 = o.clone();
+    o3.u_range = Some((1.0, 1.0));
+    assert!(fit(&[0.0, 1.0], &[0.0, 1.0], &o3).unwrap_err().to_string().starts_with("u_range:"));
+}
