@@ -1,6 +1,16 @@
-"""preisach: identify, invert, simulate and diagnose the Preisach hysteresis model."""
+"""preisach: identify, invert, simulate and diagnose the Preisach hysteresis model for
+piezoelectric nanopositioning stages and other smart-material actuators.
+
+Rust core (``preisach._preisach``) with a thin Python API:
+
+- :class:`PreisachModel`: ``fit``, ``predict``, ``stream``, ``invert``, ``inverter``,
+  ``save`` / ``load``;
+- :mod:`preisach.sim`: the plant simulator and the 100 kHz sample loop;
+- :func:`diagnose`: where the sim-to-real gap lies and which effect causes it.
+"""
 from __future__ import annotations
 
 from preisach._preisach import __version__
+from preisach.model import FitReport, PreisachModel, PreisachWarning, Stream
 
-__all__ = ["__version__"]
+__all__ = ["FitReport", "PreisachModel", "PreisachWarning", "Stream", "__version__"]

@@ -19,7 +19,7 @@ use clarabel::solver::{
     DefaultSettingsBuilder, DefaultSolver, IPSolver, NonnegativeConeT, SolverStatus, SupportedConeT, ZeroConeT,
 };
 
-use super::rows::{everett_var, mass_from_everett, Rows};
+use super::rows::{mass_from_everett, Rows};
 use crate::error::{PreisachError, Result};
 use crate::grid::cell_index;
 
@@ -308,30 +308,16 @@ pub fn solve_dense(pb: &Problem) -> Result<Solution> {
     let nf = free.len();
     let n = nf + 1;
     let n_total: f64 = rows.weight.iter().sum();
-    // Everett variable -> (a, b).
-    let mut ab = vec![(0usize, 0usize); n_q];
-    for a in 1..=n_h {
-        for b in 0..a {
-            ab[everett_var(a, b)] = (a, b);
-        }
-    }
     let m = rows.n_rows();
     let mut bmat = faer::Mat::<f64>::zeros(m, n);
     let mut z = faer::Mat::<f64>::zeros(m, 1);
+    let mut dense = vec![0.0; n_q];
     for r in 0..m {
         let sw = (2.0 * rows.weight[r] / n_total).sqrt();
-        let (idx, val) = rows.row(r);
-        for (&k, &v) in idx.iter().zip(val) {
-            // E(a, b) covers the cells with i >= b, j < a.
-            let (a, b) = ab[k as usize];
-            for j in b..a {
-                for i in b..=j {
-                    let col = col_of[cell_index(n_h, i, j)];
-                    if col != usize::MAX {
-                        bmat[(r, col)] += sw * v;
-                    }
-                }
-            }
+        dense.iter_mut().for_each(|v| *v = 0.0);
+        rows.add_mass_row(r, sw, &mut dense);
+        for (k, &c) in free.iter().enumerate() {
+            bmat[(r, k)] = dense[c];
         }
         bmat[(r, nf)] = sw;
         z[(r, 0)] = sw * (rows.target[r] - pb.mu) / pb.scale;

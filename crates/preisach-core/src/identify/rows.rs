@@ -50,6 +50,36 @@ impl Rows {
     pub fn n_vars(&self) -> usize {
         self.n_h * (self.n_h + 1) / 2
     }
+
+    /// Row `r` in mass coordinates, added into `out` (n_q, packed like the masses):
+    /// `E(a, b)` covers the cells with i >= b and j < a. The offset column is implicit.
+    pub fn add_mass_row(&self, r: usize, scale: f64, out: &mut [f64]) {
+        let (idx, val) = self.row(r);
+        for (&k, &v) in idx.iter().zip(val) {
+            let (a, b) = everett_coords(k as usize);
+            // Packed rows are contiguous in j: for each i in b..a, cells j = i..a.
+            for i in b..a {
+                let base = crate::grid::cell_index(self.n_h, i, i);
+                for c in &mut out[base..base + (a - i)] {
+                    *c += scale * v;
+                }
+            }
+        }
+    }
+}
+
+/// Inverse of [`everett_var`].
+#[inline]
+pub fn everett_coords(k: usize) -> (usize, usize) {
+    // a(a-1)/2 <= k < a(a+1)/2
+    let mut a = ((1.0 + (1.0 + 8.0 * k as f64).sqrt()) / 2.0) as usize;
+    while a * (a - 1) / 2 > k {
+        a -= 1;
+    }
+    while (a + 1) * a / 2 <= k {
+        a += 1;
+    }
+    (a, k - a * (a - 1) / 2)
 }
 
 /// Build the merged rows of input `u` and target `y` (same length, finite).

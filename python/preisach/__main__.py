@@ -1,0 +1,4 @@
+"""``python -m preisach`` runs the CLI."""
+from preisach.cli import main
+
+raise SystemExit(main())

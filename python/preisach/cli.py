@@ -1,0 +1,218 @@
+"""The ``preisach`` command line. Usage errors: one line, exit 2. Bad data: one line,
+exit 1. Never a traceback for a user's mistake."""
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from typing import Any, Callable, Optional, Sequence
+
+import numpy as np
+
+EXAMPLES = {
+    "identify": "example: preisach identify examples/paper_ident.csv --n-h 40 -o model.json",
+    "predict": "example: preisach predict model.json examples/paper_ident.csv -o predicted.csv",
+    "invert": "example: preisach invert model.json reference.csv -o input.csv --method interpolated",
+    "simulate": "example: preisach simulate --preset paper input.csv -o measured.csv",
+}
+
+
+class UsageError(Exception):
+    """A mistake in how the command was called (exit 2)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> Any:  # one line, no usage dump
+        raise UsageError(f"{self.prog}: {message} (see --help)")
+
+
+def _cmd_identify(a: argparse.Namespace) -> int:
+    from preisach.io import read_record
+    from preisach.model import PreisachModel, PreisachWarning
+
+    rec = read_record(a.data, ["u", "y"])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", PreisachWarning)
+        model = PreisachModel.fit(rec["u"], rec["y"], a.n_h, u_range=a.range, reg=a.reg, solver=a.solver,
+                                  output=a.output)
+    model.save(a.output_path)
+    rep = model.report
+    assert rep is not None
+    print(f"identified n_h={model.n_h} on u_range=({model.u_range[0]:.6g}, {model.u_range[1]:.6g}) from "
+          f"{rep.n_samples} samples ({rep.n_rows} distinct states, {rep.reversals} reversals) with {rep.solver}")
+    print(f"training RMSE {rep.rmse:.6g}; offset {model.offset:.6g}; cells never excited {rep.cells_never_excited}")
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
+    print(f"wrote {a.output_path}")
+    return 0
+
+
+def _load_predictor(path: str) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """A model file or a chain file (from ``diagnose --save-model``) as a function of
+    (t, u) -> y."""
+    import json
+
+    from preisach.model import PreisachModel
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            d = json.load(f)
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: cannot read ({exc})") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"corrupt model file {path}: not JSON ({exc})") from None
+    if isinstance(d, dict) and d.get("format") == "preisach-chain":
+        from preisach.chain import Chain
+
+        chain = Chain.from_dict(d, source=f"chain file {path}")
+        return chain.predict
+    model = PreisachModel.from_dict(d, source=f"model file {path}")
+    return lambda t, u: model.predict(u)
+
+
+def _cmd_predict(a: argparse.Namespace) -> int:
+    from preisach.io import read_record, write_csv
+
+    predict = _load_predictor(a.model)
+    rec = read_record(a.data, ["t", "u"])
+    y = predict(rec["t"], rec["u"])
+    write_csv(a.output_path, {"t": rec["t"], "y": y})
+    msg = f"wrote {a.output_path} ({len(y)} samples)"
+    if "y" in rec:
+        rmse = float(np.sqrt(np.mean((y - rec["y"]) ** 2)))
+        msg += f"; RMSE against the record's y: {rmse:.6g}"
+    print(msg)
+    return 0
+
+
+def _cmd_invert(a: argparse.Namespace) -> int:
+    from preisach.io import read_record, write_csv
+    from preisach.model import PreisachModel
+
+    model = PreisachModel.load(a.model)
+    rec = read_record(a.ref, ["t", "r"])
+    u = model.invert(rec["r"], method=a.method, lookahead=a.lookahead)
+    write_csv(a.output_path, {"t": rec["t"], "u": u})
+    print(f"wrote {a.output_path} ({len(u)} samples, method {a.method})")
+    return 0
+
+
+def _cmd_simulate(a: argparse.Namespace) -> int:
+    from preisach.io import read_record, write_csv
+    from preisach.sim import Stage
+
+    if (a.stage is None) == (a.preset is None):
+        raise UsageError("preisach simulate: give either STAGE.json or --preset NAME (see --help)")
+    if a.preset is not None:
+        stage = Stage.preset(a.preset)
+    else:
+        try:
+            with open(a.stage, encoding="utf-8") as f:
+                text = f.read()
+        except OSError as exc:
+            raise ValueError(f"{a.stage}: cannot read ({exc})") from None
+        stage = Stage.from_json(text)
+    rec = read_record(a.input, ["t", "u"])
+    y = stage.run(rec["u"])
+    write_csv(a.output_path, {"t": rec["t"], "u": rec["u"], "y": y})
+    print(f"wrote {a.output_path} ({len(y)} samples at {stage.sample_rate_hz:g} Hz)")
+    return 0
+
+
+def _range(s: str) -> float:
+    try:
+        return float(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {s!r}") from None
+
+
+def _positive_int(s: str) -> int:
+    try:
+        v = int(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {s!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
+    return v
+
+
+def _nonneg_int(s: str) -> int:
+    try:
+        v = int(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {s!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="preisach", description="Identify, invert, simulate and diagnose the Preisach "
+                "hysteresis model of a piezo stage. Records are CSV with header t,u,y (or .npz).")
+    from preisach import __version__
+
+    p.add_argument("--version", action="version", version=f"preisach {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    def add(name: str, help: str) -> argparse.ArgumentParser:
+        return sub.add_parser(name, help=help, description=help, epilog=EXAMPLES.get(name),
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+
+    s = add("identify", "Identify a Preisach model from a record (t,u,y).")
+    s.add_argument("data", metavar="DATA", help="record: CSV with header t,u,y or .npz")
+    s.add_argument("--n-h", type=_positive_int, required=True, dest="n_h", help="discretization level")
+    s.add_argument("--range", type=_range, nargs=2, metavar=("LO", "HI"), default=None,
+                   help="model range (default: the input range shrunk by 0.5%% at each end)")
+    s.add_argument("--reg", type=float, default=0.0, help="smoothness regularization (default 0)")
+    s.add_argument("--solver", choices=["auto", "clarabel", "structured"], default="auto")
+    s.add_argument("--output-kind", dest="output", choices=["stepwise", "interpolated"], default="stepwise",
+                   help="fit the stepwise (paper) or the interpolated model")
+    s.add_argument("-o", dest="output_path", required=True, metavar="MODEL.json")
+    s.set_defaults(func=_cmd_identify)
+
+    s = add("predict", "Run a model (or a chain saved by diagnose) over a record; writes t,y.")
+    s.add_argument("model", metavar="MODEL.json")
+    s.add_argument("data", metavar="DATA", help="record with columns t,u (y optional: RMSE is printed)")
+    s.add_argument("-o", dest="output_path", required=True, metavar="OUT.csv")
+    s.set_defaults(func=_cmd_predict)
+
+    s = add("invert", "Input that makes the model follow a reference (t,r); writes t,u.")
+    s.add_argument("model", metavar="MODEL.json")
+    s.add_argument("ref", metavar="REF.csv", help="reference with columns t,r")
+    s.add_argument("--method", choices=["closest", "interpolated", "continuous"], default="closest")
+    s.add_argument("--lookahead", type=_nonneg_int, default=None,
+                   help="preview samples for --method interpolated (default: whole record)")
+    s.add_argument("-o", dest="output_path", required=True, metavar="U.csv")
+    s.set_defaults(func=_cmd_invert)
+
+    s = add("simulate", "Run the plant simulator on an input record (t,u); writes t,u,y.")
+    s.add_argument("stage", metavar="STAGE.json", nargs="?", default=None)
+    s.add_argument("--preset", default=None, help="a built-in stage, e.g. 'paper'")
+    s.add_argument("input", metavar="INPUT.csv")
+    s.add_argument("-o", dest="output_path", required=True, metavar="OUT.csv")
+    s.set_defaults(func=_cmd_simulate)
+    return p
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Entry point of the ``preisach`` console script."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+        if not getattr(args, "command", None):
+            parser.print_help()
+            return 2
+        return int(args.func(args))
+    except UsageError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except (ValueError, OSError) as exc:
+        print(f"preisach: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("preisach: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

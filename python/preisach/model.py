@@ -1,0 +1,333 @@
+"""The Python face of the discrete Preisach model (seed §2–3; DESIGN.md conventions)."""
+from __future__ import annotations
+
+import json
+import math
+import warnings
+from pathlib import Path
+from typing import Any, Optional, Sequence, Union
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from preisach import _preisach
+from preisach._validate import as_n_h, as_range, as_signal
+from preisach.io import PathLike, write_text
+
+FORMAT = "preisach-model"
+VERSION = 1
+_OUTPUTS = ("stepwise", "interpolated")
+
+
+class PreisachWarning(UserWarning):
+    """A pitfall of the paper (§3.3) met by the identification data: too few reversals,
+    an input range short of or far beyond the model range."""
+
+
+class FitReport:
+    """What identification did. Attributes: ``rmse`` (training RMSE, output units),
+    ``n_samples``, ``n_rows`` (distinct relay states after merging), ``reversals``,
+    ``cells_never_excited`` (never switched on; fixed to 0), ``cells_switched_once``
+    (switched on but never off), ``input_range``, ``u_range``, ``solver``,
+    ``iterations``, ``warnings`` (list of sentences)."""
+
+    rmse: float
+    n_samples: int
+    n_rows: int
+    reversals: int
+    cells_never_excited: int
+    cells_switched_once: int
+    input_range: tuple[float, float]
+    u_range: tuple[float, float]
+    solver: str
+    iterations: int
+    warnings: list[str]
+
+    def __init__(self, d: dict[str, Any]) -> None:
+        for k, v in d.items():
+            setattr(self, k, v)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The report as a plain dict (JSON-ready)."""
+        return {k: v for k, v in vars(self).items()}
+
+    def __repr__(self) -> str:
+        return (
+            f"FitReport(rmse={self.rmse:.6g}, reversals={self.reversals}, n_rows={self.n_rows}, "
+            f"cells_never_excited={self.cells_never_excited}, solver={self.solver!r}, "
+            f"warnings={len(self.warnings)})"
+        )
+
+
+def _state_array(state: Optional[ArrayLike]) -> NDArray[np.float64]:
+    if state is None:
+        return np.zeros(0)
+    return as_signal("state", state, allow_empty=True)
+
+
+class PreisachModel:
+    """A discrete Preisach model.
+
+    Parameters
+    ----------
+    weights : (n_h, n_h) array
+        Masses ``w[i, j] >= 0`` at the cell centres: β-cell = row, α-cell = column, upper
+        triangle including the diagonal; entries below the diagonal are ignored.
+    u_range : (lo, hi)
+        Model range (β_m, α_m); input levels ``v_k = lo + k (hi - lo) / n_h``.
+    offset : float
+        The constant η0 added to ``sum w R`` (seed eq. 4).
+    output : {"stepwise", "interpolated"}
+        ``stepwise`` is the relay model of the paper (the output steps when the input
+        crosses a cell centre). ``interpolated`` spreads each mass uniformly over its cell,
+        so the output is continuous in the input and equals the stepwise model on the
+        levels (MATH.md); it is the forward map the continuous inverse inverts.
+
+    All relays start at −1 (negative saturation) unless a ``state`` is given.
+    """
+
+    report: Optional[FitReport]
+
+    def __init__(self, weights: ArrayLike, u_range: Sequence[float], offset: float = 0.0,
+                 output: str = "stepwise") -> None:
+        try:
+            w = np.array(weights, dtype=np.float64, order="C")
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"weights: cannot be converted to a float64 array ({exc})") from None
+        if w.ndim != 2 or w.shape[0] != w.shape[1]:
+            raise ValueError(f"weights: expected a square (n_h, n_h) array, got shape {w.shape}")
+        if w.shape[0] < 1:
+            raise ValueError("n_h: must be >= 1, got 0")
+        lo, hi = as_range("u_range", u_range)
+        if not isinstance(offset, (int, float, np.floating, np.integer)) or not math.isfinite(float(offset)):
+            raise ValueError(f"offset: must be a finite number, got {offset!r}")
+        if output not in _OUTPUTS:
+            raise ValueError(f"output: expected 'stepwise' or 'interpolated', got {output!r}")
+        self._core = _preisach.Model(w, lo, hi, float(offset))
+        self._output = output
+        self.report = None
+
+    @classmethod
+    def _wrap(cls, core: Any, output: str = "stepwise") -> "PreisachModel":
+        m = cls.__new__(cls)
+        m._core = core
+        m._output = output
+        m.report = None
+        return m
+
+    # --- identification -------------------------------------------------------------
+    @classmethod
+    def fit(cls, u: ArrayLike, y: ArrayLike, n_h: int, u_range: Optional[Sequence[float]] = None,
+            reg: float = 0.0, solver: str = "auto", output: str = "stepwise") -> "PreisachModel":
+        """Identify a model from input ``u`` and measured output ``y`` (seed §3.2–3.3).
+
+        One exact QP: non-negative least squares on the masses with a free offset
+        (the paper's alternation of lsqnonneg and lsqnonlin, solved as one problem).
+        Samples with identical relay state are merged into one weighted row (exact).
+
+        Parameters
+        ----------
+        u, y : 1-D arrays of equal length
+            Recorded input and output.
+        n_h : int
+            Discretization level (cells per axis; n_h + 1 input levels).
+        u_range : (lo, hi), optional
+            Model range. Default: the input range shrunk by 0.5 % of its span at each end,
+            so the input slightly exceeds the model range as the paper advises (§3.3).
+        reg : float
+            Smoothness weight: adds ``reg * sum (w_a - w_b)^2`` over neighbouring cells to
+            the mean squared residual (both in output units squared). Default 0.
+        solver : {"auto", "clarabel", "structured"}
+            ``clarabel``: dense QP over the masses (AᵀWA formed; small n_h).
+            ``structured``: sparse QP in Everett coordinates, never forms the dense matrix
+            (any n_h). ``auto`` picks the dense one for up to 600 free cells.
+        output : {"stepwise", "interpolated"}
+            Which model to fit (see the class docstring).
+
+        Returns a fitted model with ``.report`` (a :class:`FitReport`). The paper's
+        pitfalls are also emitted as :class:`PreisachWarning`.
+        """
+        uu = as_signal("u", u)
+        yy = as_signal("y", y)
+        if uu.shape != yy.shape:
+            raise ValueError(f"y: length {yy.size} does not match u (length {uu.size})")
+        nh = as_n_h(n_h)
+        rng = None if u_range is None else as_range("u_range", u_range)
+        if not isinstance(reg, (int, float, np.floating, np.integer)) or not math.isfinite(float(reg)) or reg < 0:
+            raise ValueError(f"reg: must be a finite number >= 0, got {reg!r}")
+        if output not in _OUTPUTS:
+            raise ValueError(f"output: expected 'stepwise' or 'interpolated', got {output!r}")
+        core, rep = _preisach.fit(uu, yy, nh, rng, float(reg), str(solver), output == "interpolated")
+        model = cls._wrap(core, output)
+        model.report = FitReport(rep)
+        for w in rep["warnings"]:
+            warnings.warn(w, PreisachWarning, stacklevel=2)
+        return model
+
+    # --- attributes ----------------------------------------------------------------
+    @property
+    def n_h(self) -> int:
+        """Discretization level (cells per axis)."""
+        return int(self._core.n_h)
+
+    @property
+    def u_range(self) -> tuple[float, float]:
+        """Model range (lo, hi) = (β_m, α_m)."""
+        return (float(self._core.lo), float(self._core.hi))
+
+    @property
+    def levels(self) -> NDArray[np.float64]:
+        """The n_h + 1 input levels."""
+        return self._core.levels()
+
+    @property
+    def weights(self) -> NDArray[np.float64]:
+        """Masses as an (n_h, n_h) array (a copy), zero below the diagonal."""
+        return self._core.weights()
+
+    @property
+    def offset(self) -> float:
+        """The constant output offset η0."""
+        return float(self._core.offset)
+
+    @property
+    def output(self) -> str:
+        """``"stepwise"`` or ``"interpolated"``."""
+        return self._output
+
+    def __repr__(self) -> str:
+        lo, hi = self.u_range
+        return f"PreisachModel(n_h={self.n_h}, u_range=({lo:.6g}, {hi:.6g}), offset={self.offset:.6g}, output={self._output!r})"
+
+    # --- forward -------------------------------------------------------------------
+    def predict(self, u: ArrayLike, state: Optional[ArrayLike] = None, *, return_state: bool = False,
+                output: Optional[str] = None) -> Any:
+        """Model output for input ``u`` from ``state`` (default: all relays −1).
+
+        ``state`` is a memory snapshot (``stream().state``, or the second value returned
+        with ``return_state=True``): the dominant extrema and the last input, in input
+        units. ``output`` overrides the model's own output kind. Returns a float64 array
+        (and the final state if ``return_state``)."""
+        uu = as_signal("u", u, allow_empty=True)
+        kind = self._output if output is None else output
+        if kind not in _OUTPUTS:
+            raise ValueError(f"output: expected 'stepwise' or 'interpolated', got {kind!r}")
+        y, st = self._core.predict(uu, _state_array(state), kind == "interpolated")
+        return (y, st) if return_state else y
+
+    def stream(self, state: Optional[ArrayLike] = None) -> "Stream":
+        """A sample-by-sample operator (the memory staircase), for real-time loops."""
+        return Stream(self._core.stream(_state_array(state)))
+
+    # --- inversion (seed §4) -------------------------------------------------------
+    def invert(self, r: ArrayLike, method: str = "closest", lookahead: Optional[int] = None) -> NDArray[np.float64]:
+        """Input that makes the model follow reference ``r`` (see :mod:`preisach._inverse`).
+
+        ``method``: ``"closest"`` (closest match over the levels, Tan et al. 2001),
+        ``"interpolated"`` (the paper's linear interpolation between the steps of the
+        closest match, Fig. 9; ``lookahead`` samples of preview, None = whole record) or
+        ``"continuous"`` (exact inverse of the interpolated model, no look-ahead)."""
+        from preisach._inverse import invert
+
+        return invert(self, r, method=method, lookahead=lookahead)
+
+    def inverter(self, method: str = "closest", lookahead: Optional[int] = None) -> Any:
+        """A streaming inverter with ``.step(r)``, ``.process(block)`` and ``.state``."""
+        from preisach._inverse import Inverter
+
+        return Inverter(self, method=method, lookahead=lookahead)
+
+    # --- persistence ---------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """The versioned JSON-ready dict that :meth:`save` writes."""
+        w = self.weights
+        d: dict[str, Any] = {
+            "format": FORMAT,
+            "version": VERSION,
+            "n_h": self.n_h,
+            "u_range": list(self.u_range),
+            "offset": self.offset,
+            "output": self._output,
+            # Upper triangle, row i holds w[i, i:].
+            "weights": [w[i, i:].tolist() for i in range(self.n_h)],
+        }
+        if self.report is not None:
+            d["report"] = self.report.to_dict()
+        return d
+
+    @classmethod
+    def from_dict(cls, d: Any, source: str = "model") -> "PreisachModel":
+        """Rebuild a model from :meth:`to_dict` output, validating every field."""
+        def bad(msg: str) -> ValueError:
+            return ValueError(f"corrupt {source}: {msg}")
+
+        if not isinstance(d, dict):
+            raise bad("expected a JSON object")
+        if d.get("format") != FORMAT:
+            raise bad(f"'format' must be {FORMAT!r}, got {d.get('format')!r}")
+        if d.get("version") != VERSION:
+            raise bad(f"unsupported 'version' {d.get('version')!r} (this build reads {VERSION})")
+        n_h = d.get("n_h")
+        if isinstance(n_h, bool) or not isinstance(n_h, int) or n_h < 1:
+            raise bad(f"'n_h' must be an integer >= 1, got {n_h!r}")
+        rows = d.get("weights")
+        if not isinstance(rows, list) or len(rows) != n_h:
+            raise bad(f"'weights' must be a list of {n_h} rows")
+        w = np.zeros((n_h, n_h))
+        for i, row in enumerate(rows):
+            if not isinstance(row, list) or len(row) != n_h - i:
+                raise bad(f"'weights' row {i} must hold {n_h - i} values")
+            try:
+                w[i, i:] = np.asarray(row, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise bad(f"'weights' row {i} holds non-numbers") from None
+        try:
+            model = cls(w, d.get("u_range"), d.get("offset", 0.0), d.get("output", "stepwise"))  # type: ignore[arg-type]
+        except ValueError as exc:
+            raise bad(str(exc)) from None
+        if isinstance(d.get("report"), dict):
+            model.report = FitReport(d["report"])
+        return model
+
+    def save(self, path: PathLike) -> None:
+        """Write the model as versioned JSON (atomically: temporary file, then rename)."""
+        write_text(path, json.dumps(self.to_dict(), allow_nan=False) + "\n")
+
+    @classmethod
+    def load(cls, path: PathLike) -> "PreisachModel":
+        """Read a model saved by :meth:`save`; rejects bad files with a clear ValueError."""
+        p = Path(path)
+        try:
+            text = p.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ValueError(f"{p}: cannot read ({exc})") from None
+        try:
+            d = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"corrupt model file {p}: not JSON ({exc})") from None
+        return cls.from_dict(d, source=f"model file {p}")
+
+
+class Stream:
+    """Sample-by-sample forward operator. ``step(u) -> float``, ``process(block) ->
+    ndarray``; ``state`` gets a snapshot (input values) and restores one when set."""
+
+    def __init__(self, core: Any) -> None:
+        self._core = core
+
+    def step(self, u: float) -> float:
+        """Advance one sample and return the output."""
+        return float(self._core.step(float(u)))
+
+    def process(self, block: ArrayLike) -> NDArray[np.float64]:
+        """Advance over a block of samples; returns the outputs."""
+        return self._core.process(as_signal("block", block, allow_empty=True))
+
+    @property
+    def state(self) -> NDArray[np.float64]:
+        """Snapshot of the memory: dominant extrema then the current input (input units)."""
+        return self._core.get_state()
+
+    @state.setter
+    def state(self, value: ArrayLike) -> None:
+        self._core.set_state(as_signal("state", value, allow_empty=True))

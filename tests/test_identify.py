@@ -1,0 +1,137 @@
+"""Identification: exact recovery, the two solvers against each other and against SciPy's
+NNLS on the same rows, the report and the paper's pitfalls, bad input."""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+from conftest import forc_input, random_weights, smooth_weights, sweep_input
+
+from preisach import PreisachModel, PreisachWarning, _preisach
+
+
+def _objective(A, counts, target, within, x):
+    r = A @ x - target
+    return (float(counts @ r**2) + within) / counts.sum()
+
+
+def test_identification_recovers_known_masses_and_offset_noise_free(rng):
+    for n in [6, 15]:
+        w = random_weights(rng, n)
+        truth = PreisachModel(w, (-1.0, 1.0), offset=-0.4)
+        u = forc_input(-1.0, 1.0, n)
+        for solver in ["clarabel", "structured"]:
+            m = PreisachModel.fit(u, truth.predict(u), n, u_range=(-1.0, 1.0), solver=solver)
+            scale = w.max()
+            assert np.max(np.abs(m.weights - w)) <= 1e-6 * scale
+            assert abs(m.offset + 0.4) <= 1e-6 * scale
+            assert m.report.solver == solver
+
+
+def test_sweep_with_n_h_reversals_identifies_a_smooth_model():
+    n = 20
+    truth = PreisachModel(smooth_weights(n), (0.0, 10.0), offset=1.0)
+    u = sweep_input(0.0, 10.0, 2 * n + 2, 40000)
+    y = truth.predict(u)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # enough reversals, range exceeded: no pitfall
+        m = PreisachModel.fit(u, y, n, u_range=(0.0, 10.0))
+    assert m.report.rmse < 1e-9 * np.ptp(y)
+    assert np.max(np.abs(m.weights - truth.weights)) < 1e-6 * truth.weights.max()
+
+
+def test_solvers_agree_and_match_or_beat_scipy_nnls_on_the_same_rows(rng):
+    from scipy.optimize import nnls
+
+    n = 12
+    truth = PreisachModel(random_weights(rng, n), (0, 1))
+    u = np.clip(np.cumsum(rng.normal(0, 0.08, 6000)) % 1.4 - 0.2, -0.2, 1.2)
+    y = truth.predict(u) + rng.normal(0, 0.05, u.size)
+    A, counts, target, within = _preisach.regression_rows(u, y, n, (0.0, 1.0))
+    # SciPy: offset split into two non-negative columns, rows scaled by sqrt(count).
+    sw = np.sqrt(counts)[:, None]
+    A2 = np.hstack([A, -A[:, -1:]]) * sw
+    x, _ = nnls(A2, target * sw[:, 0], maxiter=50 * A2.shape[1])
+    x_scipy = np.concatenate([x[:-2], [x[-2] - x[-1]]])
+    f_scipy = _objective(A, counts, target, within, x_scipy)
+    iu = np.triu_indices(n)
+    fs = {}
+    for solver in ["clarabel", "structured"]:
+        m = PreisachModel.fit(u, y, n, u_range=(0.0, 1.0), solver=solver)
+        xm = np.concatenate([m.weights[iu], [m.offset]])
+        fs[solver] = _objective(A, counts, target, within, xm)
+        assert fs[solver] <= f_scipy * (1 + 1e-9)
+        assert m.report.rmse == pytest.approx(np.sqrt(fs[solver]), rel=1e-9)
+    assert fs["clarabel"] == pytest.approx(fs["structured"], rel=1e-7)
+
+
+def test_merged_rows_are_exact():
+    """Merging samples with identical relay state does not change the objective."""
+    rng = np.random.default_rng(3)
+    n = 6
+    u = rng.uniform(-0.1, 1.1, 500)
+    y = rng.normal(size=500)
+    A, counts, target, within = _preisach.regression_rows(u, y, n, (0.0, 1.0))
+    assert A.shape[0] < 500 and counts.sum() == 500
+    # Expand back: every sample's row is its state's row.
+    x = rng.random(A.shape[1])
+    # The per-sample objective through the relay grid definition (R = ±1).
+    from conftest import relay_grid_predict
+
+    W = np.zeros((n, n))
+    W[np.triu_indices(n)] = x[:-1]
+    pred = relay_grid_predict(W, 0.0, 1.0, x[-1], u)
+    full = float(np.mean((pred - y) ** 2))
+    assert _objective(A, counts, target, within, x) == pytest.approx(full, rel=1e-10)
+
+
+def test_regularization_makes_weights_smoother(rng):
+    n = 10
+    truth = PreisachModel(random_weights(rng, n), (0, 1))
+    u = rng.uniform(-0.1, 1.1, 4000)
+    y = truth.predict(u)
+    rough = lambda w: float(np.sum(np.diff(w, axis=1)[np.triu_indices(n, 0, n - 1)] ** 2))
+    a = PreisachModel.fit(u, y, n, u_range=(0, 1))
+    b = PreisachModel.fit(u, y, n, u_range=(0, 1), reg=1.0)
+    assert rough(b.weights) < 0.5 * rough(a.weights)
+
+
+def test_default_range_sits_slightly_inside_the_input_range():
+    u = sweep_input(-3.0, 7.0, 30, 5000)
+    y = np.tanh(u)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        m = PreisachModel.fit(u, y, 10)
+    lo, hi = m.u_range
+    assert u.min() < lo < u.min() + 0.01 * np.ptp(u)
+    assert u.max() - 0.01 * np.ptp(u) < hi < u.max()
+
+
+def test_pitfalls_are_warned_and_reported():
+    u = sweep_input(0.0, 1.0, 6, 3000)
+    y = u**2
+    with pytest.warns(PreisachWarning, match="reversals"):
+        m = PreisachModel.fit(u, y, 20, u_range=(-0.5, 1.5))
+    assert m.report.reversals < 20
+    assert m.report.cells_never_excited > 0
+    assert any("does not exceed" in w for w in m.report.warnings)
+    with pytest.warns(PreisachWarning, match="far beyond"):
+        PreisachModel.fit(u, y, 3, u_range=(0.4, 0.6))
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(u=[0.0, np.nan], y=[0.0, 1.0], n_h=3), "u: NaN at index 1"),
+    (dict(u=[0.0, 1.0], y=[0.0, np.inf], n_h=3), "y: inf at index 1"),
+    (dict(u=[], y=[], n_h=3), "u: empty"),
+    (dict(u=[0.0, 1.0, 2.0], y=[0.0, 1.0], n_h=3), "y: length 2 does not match u"),
+    (dict(u=[0.0, 1.0], y=[0.0, 1.0], n_h=0), "n_h: must be >= 1"),
+    (dict(u=[0.0, 1.0], y=[0.0, 1.0], n_h=3, u_range=(1.0, 0.0)), "u_range: lo must be below hi"),
+    (dict(u=[0.0, 1.0], y=[0.0, 1.0], n_h=1_000_000), "n_h: .*too large"),
+    (dict(u=[0.0, 1.0], y=[0.0, 1.0], n_h=3, reg=-1.0), "reg"),
+    (dict(u=[0.0, 1.0], y=[0.0, 1.0], n_h=3, solver="magic"), "solver"),
+    (dict(u=[1.0, 1.0], y=[0.0, 1.0], n_h=3), "u: input is constant"),
+])
+def test_bad_fit_input_raises_valueerror_naming_the_argument(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        PreisachModel.fit(**kwargs)
