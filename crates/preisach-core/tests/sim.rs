@@ -1,0 +1,483 @@
+//! Plant blocks and the sample loop: each block against an analytic formula, the
+//! chain's JSON and determinism, and every bad parameter rejected by name.
+
+use std::f64::consts::{PI, TAU};
+use std::sync::Arc;
+
+use preisach_core::blocks::*;
+use preisach_core::sim::{run_loop, Identity, LinearGain, Timing};
+use preisach_core::{PreisachError, PreisachModel};
+
+const FS: f64 = 100_000.0;
+
+fn err_name(e: PreisachError) -> String {
+    match e {
+        PreisachError::Invalid { name, .. } => name,
+        other => panic!("expected Invalid, got {other:?}"),
+    }
+}
+
+/// Amplitude of the component at `f` in `x` (least-squares projection on sin/cos over
+/// a whole number of periods).
+fn amplitude_at(x: &[f64], f: f64, fs: f64) -> f64 {
+    let (mut s, mut c) = (0.0, 0.0);
+    for (k, v) in x.iter().enumerate() {
+        let ph = TAU * f * k as f64 / fs;
+        s += v * ph.sin();
+        c += v * ph.cos();
+    }
+    2.0 * (s * s + c * c).sqrt() / x.len() as f64
+}
+
+// ------------------------------------------------------------------ vibration
+
+#[test]
+fn zoh_mode_matches_the_analytic_step_response() {
+    for &(f, z) in &[(780.0, 0.02), (780.0, 0.3), (5000.0, 0.05)] {
+        let mut v = Vibration::new(VibrationParams { modes: vec![Mode { freq_hz: f, damping: z }] }, FS).unwrap();
+        let w = TAU * f;
+        let wd = w * (1.0 - z * z).sqrt();
+        for n in 0..5000 {
+            let y = v.step(1.0);
+            // Output after sample n is the position at the end of the hold interval.
+            let t = (n + 1) as f64 / FS;
+            let exact = 1.0 - (-z * w * t).exp() * ((wd * t).cos() + z / (1.0 - z * z).sqrt() * (wd * t).sin());
+            assert!((y - exact).abs() < 1e-9, "f={f} z={z} n={n}: {y} vs {exact}");
+        }
+    }
+}
+
+#[test]
+fn modes_in_series_keep_unit_dc_gain() {
+    let p = VibrationParams {
+        modes: vec![Mode { freq_hz: 780.0, damping: 0.2 }, Mode { freq_hz: 2300.0, damping: 0.1 }],
+    };
+    let mut v = Vibration::new(p, FS).unwrap();
+    let mut y = 0.0;
+    for _ in 0..100_000 {
+        y = v.step(2.5);
+    }
+    assert!((y - 2.5).abs() < 1e-9);
+}
+
+// ------------------------------------------------------------------ low-pass
+
+#[test]
+fn butterworth_dc_gain_one_and_minus_3_db_at_cutoff() {
+    for order in 1..=4 {
+        for &fc in &[500.0, 10_000.0, 30_000.0] {
+            let mut lp = Lowpass::new(LowpassParams { cutoff_hz: fc, order }, FS).unwrap();
+            let mut y = 0.0;
+            for _ in 0..20_000 {
+                y = lp.step(1.0);
+            }
+            assert!((y - 1.0).abs() < 1e-9, "order {order} fc {fc}: DC {y}");
+
+            lp.reset();
+            // Whole number of periods: fc/FS·n integer for n = 100_000 (fc integer Hz).
+            let n = 100_000;
+            let x: Vec<f64> = (0..2 * n).map(|k| (TAU * fc * k as f64 / FS).sin()).collect();
+            let y: Vec<f64> = x.iter().map(|&v| lp.step(v)).collect();
+            let a = amplitude_at(&y[n..], fc, FS);
+            assert!((a - 0.5f64.sqrt()).abs() < 1e-6, "order {order} fc {fc}: |H(fc)| = {a}");
+        }
+    }
+}
+
+#[test]
+fn butterworth_rolls_off_at_the_order_rate() {
+    // |H(f)| of a Butterworth = 1/sqrt(1 + (f/fc)^(2N)) in the prewarped frequency;
+    // far below Nyquist the prewarping is negligible (tan x ≈ x within 1e-3 here).
+    let fc = 200.0;
+    let f = 2000.0;
+    for order in 1..=4 {
+        let mut lp = Lowpass::new(LowpassParams { cutoff_hz: fc, order }, FS).unwrap();
+        let n = 100_000;
+        let y: Vec<f64> = (0..2 * n).map(|k| lp.step((TAU * f * k as f64 / FS).sin())).collect();
+        let a = amplitude_at(&y[n..], f, FS);
+        let ratio = (PI * f / FS).tan() / (PI * fc / FS).tan();
+        let exact = 1.0 / (1.0 + ratio.powi(2 * order as i32)).sqrt();
+        assert!((a / exact - 1.0).abs() < 1e-4, "order {order}: {a} vs {exact}");
+    }
+}
+
+// ------------------------------------------------------------------ delay
+
+#[test]
+fn delay_is_exact_on_integer_samples() {
+    let x: Vec<f64> = (0..500).map(|k| ((k * 7919) % 101) as f64 - 50.0).collect();
+    for d in [0usize, 1, 3, 46, 100] {
+        let mut del = Delay::new(DelayParams { delay_s: d as f64 / FS }, FS).unwrap();
+        for (k, &v) in x.iter().enumerate() {
+            let y = del.step(v);
+            let exact = if k >= d { x[k - d] } else { 0.0 };
+            assert_eq!(y, exact, "d={d} k={k}");
+        }
+    }
+}
+
+#[test]
+fn fractional_delay_is_exact_on_a_ramp() {
+    for d in [0.25, 1.5, 45.8, 7.001] {
+        let mut del = Delay::new(DelayParams { delay_s: d / FS }, FS).unwrap();
+        for k in 0..300 {
+            let y = del.step(k as f64 * 0.1);
+            if k as f64 >= d + 1.0 {
+                let exact = (k as f64 - d) * 0.1;
+                assert!((y - exact).abs() < 1e-9, "d={d} k={k}: {y} vs {exact}");
+            }
+        }
+    }
+}
+
+#[test]
+fn paper_delay_is_45_8_samples() {
+    let del = Delay::new(DelayParams { delay_s: 4.58e-4 }, FS).unwrap();
+    assert!((del.samples() - 45.8).abs() < 1e-9);
+}
+
+// ------------------------------------------------------------------ creep
+
+#[test]
+fn creep_follows_the_kelvin_voigt_step_response_and_dc_gain() {
+    let p = CreepParams { gains: vec![0.02, 0.05], time_constants_s: vec![0.01, 0.1] };
+    let mut c = Creep::new(p, FS).unwrap();
+    let mut y = 0.0;
+    for n in 0..200_000 {
+        y = c.step(1.0);
+        if n % 997 == 0 {
+            let t = (n + 1) as f64 / FS;
+            let exact = 1.0 + 0.02 * (1.0 - (-t / 0.01).exp()) + 0.05 * (1.0 - (-t / 0.1).exp());
+            assert!((y - exact).abs() < 1e-9, "n={n}: {y} vs {exact}");
+        }
+    }
+    assert!((y - 1.07).abs() < 1e-9);
+    assert!((c.dc_gain() - 1.07).abs() < 1e-12);
+}
+
+#[test]
+fn creep_log_law_grows_about_gamma_per_decade() {
+    let mut c = Creep::new(CreepParams::log_law(0.01, 0.01, 100.0), 1000.0).unwrap();
+    let y: Vec<f64> = (0..100_000).map(|_| c.step(1.0)).collect(); // 100 s at 1 kHz
+    // Between 0.1 s and 10 s (inside the τ span) the growth is ~2 decades · 1 %.
+    let g = y[9_999] - y[99];
+    assert!((g - 0.02).abs() < 0.004, "growth over two decades {g}");
+}
+
+// ------------------------------------------------------------------ drift
+
+#[test]
+fn drift_follows_its_formula_in_absolute_time() {
+    let p = DriftParams { gain_per_s: 1e-3, offset: 0.5, offset_per_s: -2e-3 };
+    let mut chain = Chain::new(FS, vec![BlockSpec::Drift(p)]).unwrap();
+    let x = |k: usize| (k as f64 * 0.01).sin();
+    for k in 0..1000 {
+        let t = k as f64 / FS;
+        let y = chain.step(x(k));
+        let exact = (1.0 + 1e-3 * t) * x(k) + 0.5 - 2e-3 * t;
+        assert!((y - exact).abs() < 1e-12);
+    }
+    // A new record keeps absolute time; a full reset returns to t = 0.
+    chain.reset_state();
+    let t = 1000.0 / FS;
+    assert!((chain.step(1.0) - ((1.0 + 1e-3 * t) + 0.5 - 2e-3 * t)).abs() < 1e-12);
+    chain.set_time(3600.0).unwrap();
+    assert!((chain.step(2.0) - ((1.0 + 3.6) * 2.0 + 0.5 - 7.2)).abs() < 1e-9);
+    chain.reset();
+    assert!((chain.step(1.0) - 1.5).abs() < 1e-12);
+}
+
+// ------------------------------------------------------------------ amplifier, quantizer, noise
+
+#[test]
+fn amplifier_gain_saturation_and_slew() {
+    let p = AmplifierParams { gain: 20.0, saturation: Some([-30.0, 150.0]), slew_v_per_s: Some(1e6) };
+    let mut a = Amplifier::new(p, FS).unwrap();
+    // 1e6 V/s at 100 kHz = 10 V per sample.
+    let ys: Vec<f64> = (0..20).map(|_| a.step(10.0)).collect();
+    for (k, y) in ys.iter().enumerate() {
+        assert_eq!(*y, (10.0 * (k + 1) as f64).min(150.0));
+    }
+    let mut a = Amplifier::new(AmplifierParams::default(), FS).unwrap();
+    assert_eq!(a.step(0.37), 20.0 * 0.37);
+}
+
+#[test]
+fn quantizer_rounds_to_codes_and_clips() {
+    let q = Quantizer::new(QuantizerParams { bits: 3, range: [0.0, 7.0] }, FS).unwrap();
+    assert_eq!(q.lsb(), 1.0);
+    assert_eq!(q.step(2.49), 2.0);
+    assert_eq!(q.step(2.51), 3.0);
+    assert_eq!(q.step(-5.0), 0.0);
+    assert_eq!(q.step(9.0), 7.0);
+    let q16 = Quantizer::new(QuantizerParams { bits: 16, range: [-10.0, 10.0] }, FS).unwrap();
+    for k in 0..1000 {
+        let x = -9.9 + k as f64 * 0.0199;
+        assert!((q16.step(x) - x).abs() <= 0.5 * 20.0 / 65535.0 + 1e-12);
+    }
+}
+
+#[test]
+fn noise_is_white_gaussian_with_its_std() {
+    let mut n = Noise::new(NoiseParams { std: 0.3, seed: 11 }, FS).unwrap();
+    let x: Vec<f64> = (0..200_000).map(|_| n.step(1.0) - 1.0).collect();
+    let mean = x.iter().sum::<f64>() / x.len() as f64;
+    let var = x.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / x.len() as f64;
+    let lag1 = x.windows(2).map(|w| w[0] * w[1]).sum::<f64>() / x.len() as f64 / var;
+    assert!(mean.abs() < 0.005, "mean {mean}");
+    assert!((var.sqrt() - 0.3).abs() < 0.003, "std {}", var.sqrt());
+    assert!(lag1.abs() < 0.01, "lag-1 correlation {lag1}");
+}
+
+// ------------------------------------------------------------------ hysteresis
+
+fn parametric() -> ParametricHysteresis {
+    ParametricHysteresis {
+        lo: -30.0,
+        hi: 180.0,
+        n_h: 500,
+        hysteretic_stroke: 30.0,
+        coercivity_median: 12.0,
+        coercivity_sigma: 0.7,
+        interaction_mean: Some(75.0),
+        interaction_sigma: 45.0,
+        reversible_slope: 0.06,
+        reversible_saturation: 1.5,
+        reversible_width: Some(90.0),
+        offset: 0.0,
+        interpolated: true,
+    }
+}
+
+#[test]
+fn parametric_hysteresis_is_continuous_and_hysteretic() {
+    let mut h = Hysteresis::new(HysteresisParams::Parametric(parametric()), FS).unwrap();
+    assert_eq!(h.model().n_h(), 500);
+    // Continuous: a 1 mV step of the piezo voltage moves the output by far less than a
+    // level's worth of a coarse model.
+    let n = 20_000;
+    let up: Vec<f64> = (0..=n).map(|k| 150.0 * k as f64 / n as f64).collect();
+    let yu: Vec<f64> = up.iter().map(|&u| h.step(u)).collect();
+    let max_jump = yu.windows(2).map(|w| (w[1] - w[0]).abs()).fold(0.0, f64::max);
+    assert!(max_jump < 0.01, "largest jump {max_jump} µm for a 7.5 mV step");
+    assert!(yu.windows(2).all(|w| w[1] >= w[0] - 1e-12), "ascending branch is monotone");
+    let yd: Vec<f64> = up.iter().rev().map(|&u| h.step(u)).collect();
+    // Descending branch lies above the ascending one at mid-range (counter-clockwise).
+    let mid = n / 2;
+    let width = yd[n - mid] - yu[mid];
+    let stroke = yu[n] - yu[0];
+    assert!(stroke > 25.0 && stroke < 50.0, "stroke {stroke} µm");
+    assert!(width > 0.05 * stroke && width < 0.3 * stroke, "loop width {width} of stroke {stroke}");
+}
+
+#[test]
+fn identified_block_equals_its_model() {
+    let n_h = 12;
+    let masses: Vec<f64> = (0..n_h * (n_h + 1) / 2).map(|k| 0.1 + (k % 5) as f64 * 0.03).collect();
+    let model = PreisachModel::new(preisach_core::Grid::new(-1.0, 2.0, n_h).unwrap(), masses.clone(), 0.4).unwrap();
+    let model = Arc::new(model);
+    for interpolated in [true, false] {
+        let mut h = Hysteresis::from_model(model.clone(), interpolated);
+        let mut mi = model.interp_memory();
+        let mut ms = model.memory();
+        for k in 0..2000 {
+            let u = 1.5 * (k as f64 * 0.013).sin() * (k as f64 * 0.0011).cos() + 0.3;
+            let want = if interpolated { model.step_interpolated(&mut mi, u) } else { model.step(&mut ms, u) };
+            assert_eq!(h.step(u), want);
+        }
+        // JSON round trip carries the masses.
+        let chain = Chain::new(FS, vec![BlockSpec::Hysteresis(h.params())]).unwrap();
+        let back = Chain::from_json(&chain.to_json()).unwrap();
+        match back.spec().blocks[0].clone() {
+            BlockSpec::Hysteresis(HysteresisParams::Identified(p)) => {
+                assert_eq!(p.weights, masses);
+                assert_eq!(p.interpolated, interpolated);
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+}
+
+// ------------------------------------------------------------------ chain, preset, JSON
+
+fn sweep(n: usize) -> Vec<f64> {
+    (0..n).map(|k| 3.75 + 3.5 * (TAU * 20.0 * k as f64 / FS).sin() * (k as f64 / n as f64)).collect()
+}
+
+#[test]
+fn paper_preset_units_and_stroke() {
+    let mut c = preset("paper", "{}").unwrap();
+    assert_eq!(c.sample_rate_hz, 100_000.0);
+    // Slow ramp DAC 0 → 7.5 V: sensor 0 → ~8 V (0–40 µm at 1/5 V/µm).
+    let n = 100_000;
+    let mut y = 0.0;
+    for k in 0..=n {
+        y = c.step(7.5 * k as f64 / n as f64);
+    }
+    assert!(y > 5.0 && y < 10.0, "sensor at full stroke {y} V");
+    let kinds: Vec<&str> = c.blocks.iter().map(|b| b.kind()).collect();
+    assert_eq!(kinds, ["quantizer", "lowpass", "amplifier", "hysteresis", "creep", "vibration", "sensor"]);
+    let d = preset("paper", r#"{"delay": true}"#).unwrap();
+    match &d.spec().blocks[6] {
+        BlockSpec::Sensor(s) => assert_eq!(s.delay_s, 4.58e-4),
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn seeded_chain_is_deterministic() {
+    let u = sweep(30_000);
+    let run = |c: &mut Chain| u.iter().map(|&x| c.step(x)).collect::<Vec<f64>>();
+    let mut a = preset("paper", r#"{"seed": 5}"#).unwrap();
+    let mut b = preset("paper", r#"{"seed": 5}"#).unwrap();
+    let ya = run(&mut a);
+    assert_eq!(ya, run(&mut b));
+    a.reset();
+    assert_eq!(ya, run(&mut a), "reset replays exactly");
+    let mut c = preset("paper", r#"{"seed": 6}"#).unwrap();
+    assert_ne!(ya, run(&mut c));
+}
+
+#[test]
+fn json_round_trip_gives_the_same_chain_and_output() {
+    let mut a = preset("paper", r#"{"delay": true, "seed": 9, "drift_offset_per_s": 1e-3}"#).unwrap();
+    let text = a.to_json();
+    assert!(text.contains("\"type\": \"hysteresis\"") && text.contains("\"source\": \"parametric\""));
+    assert!(text.len() < 5000, "parametric hysteresis is stored by parameters, not masses");
+    let mut b = Chain::from_json(&text).unwrap();
+    assert_eq!(a.spec(), b.spec());
+    let u = sweep(5000);
+    for &x in &u {
+        assert_eq!(a.step(x), b.step(x));
+    }
+    // serde on the Chain itself (for embedding in other documents).
+    let c: Chain = serde_json::from_str(&serde_json::to_string(&b).unwrap()).unwrap();
+    assert_eq!(c.spec(), b.spec());
+}
+
+#[test]
+fn every_block_type_parses_from_hand_written_json() {
+    let text = r#"{"version": 1, "sample_rate_hz": 100000, "blocks": [
+        {"type": "quantizer", "bits": 16, "range": [-10, 10]},
+        {"type": "amplifier"},
+        {"type": "hysteresis", "source": "identified", "lo": 0, "hi": 1, "n_h": 2, "weights": [1, 0.5, 2]},
+        {"type": "creep", "gains": [0.01], "time_constants_s": [1.0]},
+        {"type": "vibration", "modes": [{"freq_hz": 780, "damping": 0.02}]},
+        {"type": "lowpass", "cutoff_hz": 5000},
+        {"type": "delay", "delay_s": 4.58e-4},
+        {"type": "noise", "std": 0.001, "seed": 1},
+        {"type": "drift", "offset_per_s": 0.001},
+        {"type": "sensor"}
+    ]}"#;
+    let c = Chain::from_json(text).unwrap();
+    assert_eq!(c.blocks.len(), 10);
+}
+
+#[test]
+fn bad_parameters_are_rejected_by_name() {
+    let cases: &[(&str, &str)] = &[
+        (r#"{"type": "creep", "gains": [0.1], "time_constants_s": [-1.0]}"#, "time_constants_s[0]"),
+        (r#"{"type": "creep", "gains": [0.1, 0.2], "time_constants_s": [1.0]}"#, "gains"),
+        (r#"{"type": "vibration", "modes": [{"freq_hz": 780, "damping": 0}]}"#, "modes[0].damping"),
+        (r#"{"type": "vibration", "modes": [{"freq_hz": 780, "damping": -0.1}]}"#, "modes[0].damping"),
+        (r#"{"type": "vibration", "modes": [{"freq_hz": 60000, "damping": 0.1}]}"#, "modes[0].freq_hz"),
+        (r#"{"type": "lowpass", "cutoff_hz": 60000}"#, "cutoff_hz"),
+        (r#"{"type": "lowpass", "cutoff_hz": 50000}"#, "cutoff_hz"),
+        (r#"{"type": "lowpass", "cutoff_hz": 1000, "order": 5}"#, "order"),
+        (r#"{"type": "sensor", "lowpass": {"cutoff_hz": 0}}"#, "cutoff_hz"),
+        (r#"{"type": "delay", "delay_s": -1e-5}"#, "delay_s"),
+        (r#"{"type": "sensor", "delay_s": -1e-5}"#, "delay_s"),
+        (r#"{"type": "sensor", "noise_std": -1}"#, "noise_std"),
+        (r#"{"type": "noise", "std": -1}"#, "std"),
+        (r#"{"type": "quantizer", "bits": 0, "range": [0, 1]}"#, "bits"),
+        (r#"{"type": "quantizer", "bits": 8, "range": [1, 0]}"#, "range"),
+        (r#"{"type": "amplifier", "saturation": [5, 1]}"#, "saturation"),
+        (r#"{"type": "amplifier", "slew_v_per_s": 0}"#, "slew_v_per_s"),
+        (r#"{"type": "hysteresis", "source": "identified", "lo": 0, "hi": 1, "n_h": 2, "weights": [1, -0.5, 2]}"#, "weights"),
+        (r#"{"type": "hysteresis", "source": "identified", "lo": 0, "hi": 1, "n_h": 2, "weights": [1]}"#, "weights"),
+        (r#"{"type": "hysteresis", "source": "parametric", "lo": 0, "hi": 150, "hysteretic_stroke": 30,
+             "coercivity_median": -1, "coercivity_sigma": 0.5, "interaction_sigma": 40}"#, "coercivity_median"),
+    ];
+    for (block, name) in cases {
+        let text = format!(r#"{{"version": 1, "sample_rate_hz": 100000, "blocks": [{block}]}}"#);
+        let e = Chain::from_json(&text).expect_err(block);
+        let msg = e.to_string();
+        assert_eq!(err_name(e), *name, "{block}: {msg}");
+        assert!(msg.contains("blocks[0]"), "{msg}");
+    }
+    // Non-finite values (JSON has none: build directly).
+    let e = Creep::new(CreepParams { gains: vec![f64::NAN], time_constants_s: vec![1.0] }, FS).unwrap_err();
+    assert_eq!(err_name(e), "gains[0]");
+    let e = Vibration::new(VibrationParams { modes: vec![Mode { freq_hz: f64::INFINITY, damping: 0.1 }] }, FS)
+        .unwrap_err();
+    assert_eq!(err_name(e), "modes[0].freq_hz");
+    let e = Delay::new(DelayParams { delay_s: f64::NAN }, FS).unwrap_err();
+    assert_eq!(err_name(e), "delay_s");
+    let e = Drift::new(DriftParams { gain_per_s: f64::INFINITY, ..Default::default() }, FS).unwrap_err();
+    assert_eq!(err_name(e), "gain_per_s");
+    let e = Amplifier::new(AmplifierParams { gain: f64::NAN, ..Default::default() }, FS).unwrap_err();
+    assert_eq!(err_name(e), "gain");
+    let e = Chain::new(-1.0, vec![]).unwrap_err();
+    assert_eq!(err_name(e), "sample_rate_hz");
+    let e = Chain::new(f64::NAN, vec![]).unwrap_err();
+    assert_eq!(err_name(e), "sample_rate_hz");
+    // Cutoff against the chain's own Nyquist.
+    let e = Chain::new(1000.0, vec![BlockSpec::Lowpass(LowpassParams { cutoff_hz: 600.0, order: 2 })]).unwrap_err();
+    assert!(e.to_string().contains("Nyquist (500 Hz)"), "{e}");
+    // Presets.
+    assert_eq!(err_name(preset("paper", r#"{"damping": 0}"#).unwrap_err()), "modes[0].damping");
+    assert_eq!(err_name(preset("paper", r#"{"dampin": 0.1}"#).unwrap_err()), "overrides");
+    assert_eq!(err_name(preset("papr", "{}").unwrap_err()), "name");
+}
+
+#[test]
+fn corrupt_json_is_reported_as_corrupt() {
+    for text in [
+        "{not json",
+        r#"{"version": 1, "sample_rate_hz": 100000}"#,
+        r#"{"version": 1, "sample_rate_hz": 100000, "blocks": [{"type": "warp"}]}"#,
+        r#"{"version": 1, "sample_rate_hz": 100000, "blocks": [{"type": "lowpass", "cutof_hz": 10}]}"#,
+        r#"{"version": 99, "sample_rate_hz": 100000, "blocks": []}"#,
+    ] {
+        match Chain::from_json(text) {
+            Err(PreisachError::Corrupt { what, .. }) => assert_eq!(what, "chain"),
+            other => panic!("{text}: {other:?}"),
+        }
+    }
+}
+
+// ------------------------------------------------------------------ loop
+
+#[test]
+fn loop_with_identity_equals_the_plant_and_reports_timing() {
+    let r = sweep(20_000);
+    let mut plant = preset("paper", "{}").unwrap();
+    let out = run_loop(&mut Identity, &mut plant, &r).unwrap();
+    let mut fresh = preset("paper", "{}").unwrap();
+    let y: Vec<f64> = r.iter().map(|&x| fresh.step(x)).collect();
+    assert_eq!(out.u, r);
+    assert_eq!(out.y, y);
+    for k in 0..r.len() {
+        assert_eq!(out.error[k], r[k] - y[k]);
+    }
+    let t = out.timing;
+    assert_eq!(t.samples, 20_000);
+    assert_eq!(t.budget_ns, 10_000.0);
+    assert!(t.mean_ns > 0.0 && t.mean_ns <= t.max_ns && t.p99_ns <= t.max_ns);
+
+    let mut g = LinearGain { gain: 2.0, offset: 0.5 };
+    let out = run_loop(&mut g, &mut plant, &r).unwrap();
+    assert_eq!(out.u[7], 2.0 * r[7] + 0.5);
+    assert!(run_loop(&mut Identity, &mut plant, &[]).is_err());
+    assert_eq!(err_name(run_loop(&mut Identity, &mut plant, &[0.0, f64::NAN]).unwrap_err()), "reference");
+}
+
+#[test]
+fn timing_statistics() {
+    let mut ns: Vec<u64> = (1..=1000).collect();
+    let t = Timing::from_samples(&mut ns, 990.0);
+    assert_eq!(t.mean_ns, 500.5);
+    assert_eq!(t.p99_ns, 990.0);
+    assert_eq!(t.max_ns, 1000.0);
+    assert_eq!(t.misses, 10);
+}
