@@ -3,8 +3,8 @@
 //! of the interpolated model.
 //!
 //! - [`closest_level`]: the closest-match search of Tan et al. (2001). From a fixed
-//!   memory the output after moving to level `k` is non-decreasing in `k` (masses
-//!   >= 0, MATH.md "Closest match is a search over a monotone function"), so the
+//!   memory the output after moving to level `k` is non-decreasing in `k` (masses are
+//!   non-negative; MATH.md "Closest match is a search over a monotone function"), so the
 //!   search is a galloping binary search from the previous level over
 //!   [`PreisachModel::peek_level`]: O(log n_h) peeks worst case, one or two on a smooth
 //!   reference, no state copies, no scan over the levels.

@@ -22,10 +22,6 @@ fn brute_outputs(model: &PreisachModel, mem: &StepMemory) -> Vec<f64> {
         .collect()
 }
 
-fn scale(model: &PreisachModel) -> f64 {
-    model.everett().total() + model.offset().abs()
-}
-
 /// A model with many zero masses: long plateaus of equal output.
 fn sparse_model(rng: &mut Rng, n_h: usize) -> PreisachModel {
     let grid = Grid::new(0.0, 1.0, n_h).unwrap();
