@@ -98,12 +98,27 @@ pub struct LoopResult {
 /// compensator step and one plant-chain step, timed per sample with
 /// `Instant` (one clock read per sample, so each duration also carries the loop's
 /// own bookkeeping, about one clock read, ~20 ns). The plant is simulated here, so
-/// the timing is an upper bound of what a real controller would spend (compensator
-/// + I/O only). Output buffers are allocated before the loop; the loop itself does
+/// the timing is an upper bound of what a real controller would spend (the
+/// compensator and I/O only). Output buffers are allocated before the loop; the loop itself does
 /// not allocate.
 ///
 /// Both the compensator and the chain are reset first (replay from rest, time 0).
 pub fn run_loop<C: Compensator + ?Sized>(comp: &mut C, plant: &mut Chain, reference: &[f64]) -> Result<LoopResult> {
+    run_loop_preview(comp, plant, reference, 0)
+}
+
+/// [`run_loop`] for a compensator whose output lags its input by `preview` samples
+/// (the streaming interpolated inverse with look-ahead L): the reference is known
+/// ahead (feed-forward from a planned trajectory, seed §4.1), so the compensator is
+/// primed with the first `preview` references (outputs discarded, not timed) and then
+/// fed `r[k + preview]` (the last reference repeated at the end) while the plant gets
+/// the compensator output that belongs to `r[k]`.
+pub fn run_loop_preview<C: Compensator + ?Sized>(
+    comp: &mut C,
+    plant: &mut Chain,
+    reference: &[f64],
+    preview: usize,
+) -> Result<LoopResult> {
     check_signal("reference", reference)?;
     let n = reference.len();
     let budget_ns = 1e9 / plant.sample_rate_hz;
@@ -112,9 +127,13 @@ pub fn run_loop<C: Compensator + ?Sized>(comp: &mut C, plant: &mut Chain, refere
     let mut u = vec![0.0; n];
     let mut y = vec![0.0; n];
     let mut ns = vec![0u64; n];
+    let ahead = |k: usize| reference[(k + preview).min(n - 1)];
+    for k in 0..preview {
+        comp.step(reference[k.min(n - 1)]);
+    }
     let mut prev = Instant::now();
     for k in 0..n {
-        let uk = comp.step(reference[k]);
+        let uk = comp.step(ahead(k));
         u[k] = uk;
         y[k] = plant.step(uk);
         let now = Instant::now();

@@ -183,7 +183,7 @@ impl Hysteresis {
             }
         }
         let total: f64 = masses.iter().sum();
-        if !(total > 0.0) || !total.is_finite() {
+        if !total.is_finite() || total <= 0.0 {
             return Err(PreisachError::invalid(
                 "coercivity_median",
                 "the density has no mass on the grid: check coercivity and interaction against lo/hi",
