@@ -112,7 +112,9 @@ def waveform(kind: str, fs: float, dur: float, rng: np.random.Generator) -> np.n
     mid, amp = 50.0, 45.0
     if kind == "train":
         # Decaying multi-tone: many nested reversals, several rates, plus a few steps.
-        env = 0.15 + 0.85 * np.exp(-t / (dur / 3))
+        # Two decaying bursts: large loops early and late, so a slow drift in time is not
+        # confounded with the input level.
+        env = 0.15 + 0.85 * np.exp(-(t % (dur / 2)) / (dur / 6))
         # Starts at rest at the bottom; the first cycles span the whole range.
         s = 0.8 * np.cos(2 * np.pi * 7 * t) + 0.2 * np.cos(2 * np.pi * 61 * t)
         u = mid - amp * env * s

@@ -199,6 +199,16 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
             break
         accepted.append(best)
         cur, cur_score = results[best]
+        # Polish the accepted chain (profile every kept effect with the masses refitted)
+        # so the next round credits a new effect only with its own improvement, not with
+        # further convergence of the effects already kept.
+        eff, model = dict(cur.effects), cur.model
+        for c in accepted:
+            eff, model = fitter.profile(c, eff, model)
+        pol = FitState(model, eff)
+        ps = score(pol)
+        if ps < cur_score:
+            cur, cur_score = pol, ps
     # Discretization: a finer grid (with the effects found).
     if "discretization" in candidates:
         nh2 = min(2 * n_h, max(n_h, _reversals(tr.u) // 2), 120)
