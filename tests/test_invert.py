@@ -9,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import preisach
+from preisach._inverse import invert as invert_with_info
 from conftest import random_weights, smooth_weights
 
 PreisachModel = preisach.PreisachModel
@@ -51,7 +52,7 @@ def test_closest_match_is_optimal_along_its_path_against_the_relay_grid():
     wu = np.where(upper, w, 0.0)
     levels = lo + np.arange(n + 1) * d
     r = _reference(m, 400, seed=4, beyond=0.3)
-    u, info = m.invert(r), preisach._inverse.invert(m, r, return_info=True)[1]
+    u, info = m.invert(r), invert_with_info(m, r, return_info=True)[1]
     R = -np.ones((n, n))
     prev = 0
     sat = 0
@@ -91,7 +92,7 @@ def test_saturated_references_are_counted_not_errors():
     m = _model(8, seed=7)
     ymin, ymax = _range(m)
     r = np.array([ymin - 1.0, 0.5 * (ymin + ymax), ymax + 5.0, ymax + 1e-3, ymin])
-    u, info = preisach._inverse.invert(m, r, "closest", return_info=True)
+    u, info = invert_with_info(m, r, "closest", return_info=True)
     assert info.saturated == 3
     assert u[0] == -1.0 and u[2] == 2.0 and u[3] == 2.0
     inv = m.inverter("continuous")
