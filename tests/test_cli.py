@@ -89,7 +89,7 @@ def test_bad_data_is_one_line_with_exit_code_1(tmp_path, capsys):
 def test_console_script_and_module_entry_points_show_help_with_an_example():
     script = Path(sys.executable).parent / "preisach"  # installed beside the interpreter
     for cmd in ([str(script)], [sys.executable, "-m", "preisach"]):
-        for sub in ["identify", "predict", "invert", "simulate"]:
+        for sub in ["identify", "predict", "invert", "simulate", "diagnose"]:
             r = subprocess.run(cmd + [sub, "--help"], capture_output=True, text=True, timeout=60)
             assert r.returncode == 0, r.stderr
             assert "example:" in r.stdout

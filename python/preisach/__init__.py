@@ -12,5 +12,9 @@ from __future__ import annotations
 
 from preisach._preisach import __version__
 from preisach.model import FitReport, PreisachModel, PreisachWarning, Stream
+from preisach import sim
+from preisach.chain import Chain
+from preisach.diagnose import GapReport, diagnose
 
-__all__ = ["FitReport", "PreisachModel", "PreisachWarning", "Stream", "__version__"]
+__all__ = ["Chain", "FitReport", "GapReport", "PreisachModel", "PreisachWarning", "Stream", "__version__",
+           "diagnose", "sim"]

@@ -14,6 +14,8 @@ EXAMPLES = {
     "predict": "example: preisach predict model.json examples/paper_ident.csv -o predicted.csv",
     "invert": "example: preisach invert model.json reference.csv -o input.csv --method interpolated",
     "simulate": "example: preisach simulate --preset paper input.csv -o measured.csv",
+    "diagnose": "example: preisach diagnose train.csv --holdout steps.csv --holdout sine50.csv "
+                "--json report.json --save-model aug.json --plots plots/",
 }
 
 
@@ -119,6 +121,12 @@ def _cmd_simulate(a: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_diagnose(a: argparse.Namespace) -> int:
+    from preisach.diagnose import run_cli
+
+    return int(run_cli(a))
+
+
 def _range(s: str) -> float:
     try:
         return float(s)
@@ -191,6 +199,20 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("input", metavar="INPUT.csv")
     s.add_argument("-o", dest="output_path", required=True, metavar="OUT.csv")
     s.set_defaults(func=_cmd_simulate)
+
+    s = add("diagnose", "Where the model and the stage disagree, which unmodelled effect causes it, "
+            "and how far the gap shrinks once it is added (scored on holdout records).")
+    s.add_argument("train", metavar="TRAIN", help="training record t,u,y (fits the baseline model)")
+    s.add_argument("--holdout", action="append", required=True, metavar="H",
+                   help="holdout record t,u,y (repeat for several); never used to fit anything")
+    s.add_argument("--n-h", type=_positive_int, default=40, dest="n_h", help="baseline n_h (default 40)")
+    s.add_argument("--baseline", default=None, metavar="CHAIN.json",
+                   help="a chain that already models some effects")
+    s.add_argument("--json", required=True, metavar="REPORT.json", help="write the full report here")
+    s.add_argument("--save-model", dest="save_model", default=None, metavar="AUG.json",
+                   help="write the augmented chain (runs with `preisach predict`)")
+    s.add_argument("--plots", default=None, metavar="DIR", help="write PNG plots here (needs preisach[plot])")
+    s.set_defaults(func=_cmd_diagnose)
     return p
 
 
