@@ -140,8 +140,12 @@ def test_bad_parameters_raise_naming_them(block: dict, name: str) -> None:
 def test_other_bad_input() -> None:
     with pytest.raises(ValueError, match="cutoff_hz: must be below Nyquist"):
         Stage([{"type": "lowpass", "cutoff_hz": 600}], sample_rate_hz=1000)
-    with pytest.raises(ValueError, match="blocks: cannot be written as JSON"):
+    with pytest.raises(ValueError, match=r"^cutoff_hz: must be finite, got nan \(blocks\[0\], lowpass\)"):
         Stage([{"type": "lowpass", "cutoff_hz": float("nan")}])
+    with pytest.raises(ValueError, match=r"^modes\[0\].damping: must be finite, got inf"):
+        Stage([{"type": "vibration", "modes": [{"freq_hz": 780.0, "damping": np.inf}]}])
+    with pytest.raises(ValueError, match=r"^damping: must be finite"):
+        Stage.preset("paper", damping=float("nan"))
     with pytest.raises(ValueError, match="sample_rate_hz"):
         Stage([], sample_rate_hz=-1)
     with pytest.raises(ValueError, match="blocks\\[0\\]"):

@@ -73,6 +73,11 @@ class Stage:
         fs = float(sample_rate_hz)
         if not math.isfinite(fs) or fs <= 0:
             raise ValueError(f"sample_rate_hz: must be finite and > 0, got {fs}")
+        for k, b in enumerate(blocks):
+            bad = _non_finite(b, "")
+            if bad is not None:
+                name, _, value = bad.partition(" = ")
+                raise ValueError(f"{name}: must be finite, got {value} (blocks[{k}], {b.get('type', '?')})")
         try:
             text = json.dumps({"version": CHAIN_VERSION, "sample_rate_hz": fs, "blocks": [dict(b) for b in blocks]},
                               allow_nan=False, default=_json_default)
@@ -95,6 +100,10 @@ class Stage:
         ``drift_gain_per_s``, ``drift_offset_per_s``, ``sample_rate_hz``."""
         if not isinstance(name, str):
             raise ValueError(f"name: expected a preset name, got {name!r}")
+        bad = _non_finite(overrides, "")
+        if bad is not None:
+            name_, _, value = bad.partition(" = ")
+            raise ValueError(f"{name_}: must be finite, got {value} (preset {name!r})")
         try:
             text = json.dumps(overrides, allow_nan=False, default=_json_default)
         except (TypeError, ValueError) as exc:
@@ -258,6 +267,23 @@ def run_loop(model: Any, stage: Stage, reference: ArrayLike, method: str = "cont
     timing = Timing(float(d["mean_ns"]), float(d["p99_ns"]), float(d["max_ns"]), int(d["misses"]),
                     float(d["budget_ns"]), int(d["samples"]))
     return LoopResult(u=d["u"], y=d["y"], error=d["error"], timing=timing)
+
+
+def _non_finite(x: Any, path: str) -> Optional[str]:
+    """Path of the first non-finite number inside nested dicts/lists, or None."""
+    if isinstance(x, Mapping):
+        for k, v in x.items():
+            p = _non_finite(v, f"{path}.{k}" if path else str(k))
+            if p is not None:
+                return p
+    elif isinstance(x, (list, tuple, np.ndarray)):
+        for i, v in enumerate(x):
+            p = _non_finite(v, f"{path}[{i}]")
+            if p is not None:
+                return p
+    elif isinstance(x, (float, np.floating)) and not math.isfinite(float(x)):
+        return f"{path} = {float(x)}"
+    return None
 
 
 def _json_default(o: Any) -> Any:
