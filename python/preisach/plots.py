@@ -1,0 +1,129 @@
+"""PNG plots of models and tracking runs (the paper's figures 6b, 8 and 12).
+
+matplotlib is an optional extra (``pip install 'preisach[plot]'``); it is imported only
+when a plot is drawn, with the non-interactive Agg backend. Every function takes plain
+arrays (or a :class:`~preisach.PreisachModel`), writes one PNG and returns its path.
+"""
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from typing import Any, Mapping, Optional
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from preisach.io import PathLike
+
+__all__ = ["available", "HINT", "plot_weights", "plot_loop", "plot_tracking", "plot_spectra"]
+
+#: How to get the plots when matplotlib is missing.
+HINT = "plots need matplotlib: pip install 'preisach[plot]'"
+
+
+def available() -> bool:
+    """True if matplotlib can be imported (without importing it)."""
+    return importlib.util.find_spec("matplotlib") is not None
+
+
+def _plt() -> Any:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise ValueError(HINT) from None
+    return plt
+
+
+def _save(fig: Any, path: PathLike) -> str:
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(p, dpi=100)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return str(p)
+
+
+def plot_weights(model: Any, path: PathLike, input_unit: str = "V", output_unit: str = "V") -> str:
+    """The Preisach weights as a heatmap over the (α, β) half plane (seed Fig. 6b): α
+    (switch-on level) across, β (switch-off level) up, cells below the diagonal blank."""
+    plt = _plt()
+    w = np.asarray(model.weights, dtype=np.float64)
+    n = w.shape[0]
+    lo, hi = model.u_range
+    shown = np.where(np.triu(np.ones((n, n), dtype=bool)), w, np.nan)
+    fig, ax = plt.subplots(figsize=(6.4, 5.4))
+    im = ax.imshow(shown, origin="lower", extent=(lo, hi, lo, hi), cmap="viridis", interpolation="nearest")
+    ax.set(xlabel=f"α, switch-on level [{input_unit}]", ylabel=f"β, switch-off level [{input_unit}]",
+           title=f"Preisach weights, n_h = {n} (blank: β > α)")
+    fig.colorbar(im, ax=ax, label=f"weight [{output_unit}]")
+    return _save(fig, path)
+
+
+def plot_loop(t: ArrayLike, u: ArrayLike, measured: ArrayLike, model: ArrayLike, path: PathLike,
+              input_unit: str = "V", output_unit: str = "V", title: str = "") -> str:
+    """Model vs measurement (seed Fig. 8): (a) both over time, (b) the hysteresis loop
+    output against input."""
+    plt = _plt()
+    t, u, ym, yp = (np.asarray(a, dtype=np.float64) for a in (t, u, measured, model))
+    fig, ax = plt.subplots(1, 2, figsize=(12, 4.6))
+    ax[0].plot(t, ym, "k", lw=0.9, label="measured")
+    ax[0].plot(t, yp, "tab:red", lw=0.9, ls="--", label="model")
+    ax[0].set(xlabel="time [s]", ylabel=f"output [{output_unit}]", title=f"(a) {title}".strip())
+    ax[0].legend(loc="best")
+    ax[1].plot(u, ym, "k", lw=0.9, label="measured")
+    ax[1].plot(u, yp, "tab:red", lw=0.9, ls="--", label="model")
+    ax[1].set(xlabel=f"input [{input_unit}]", ylabel=f"output [{output_unit}]", title="(b) hysteresis loop")
+    ax[1].legend(loc="best")
+    for a in ax:
+        a.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def plot_tracking(t: ArrayLike, reference: ArrayLike, measured: ArrayLike, path: PathLike,
+                  unit: str = "V", title: str = "") -> str:
+    """Tracking (seed Fig. 12): (a) reference, measurement and error over time,
+    (b) measurement against reference (a straight line when hysteresis is compensated)."""
+    plt = _plt()
+    t, r, y = (np.asarray(a, dtype=np.float64) for a in (t, reference, measured))
+    fig, ax = plt.subplots(1, 2, figsize=(12, 4.6))
+    ax[0].plot(t, r, "k", lw=0.9, label="reference")
+    ax[0].plot(t, y, "tab:blue", lw=0.8, label="measured")
+    ax[0].plot(t, r - y, "tab:red", lw=0.8, label="error")
+    ax[0].set(xlabel="time [s]", ylabel=f"position [{unit}]", title=f"(a) {title}".strip())
+    ax[0].legend(loc="best")
+    ax[1].plot(r, y, "tab:blue", lw=0.8, label="measured")
+    lim = [float(min(r.min(), y.min())), float(max(r.max(), y.max()))]
+    ax[1].plot(lim, lim, "k--", lw=0.8, label="ideal")
+    ax[1].set(xlabel=f"reference [{unit}]", ylabel=f"measured [{unit}]", title="(b) measured vs reference")
+    ax[1].legend(loc="best")
+    for a in ax:
+        a.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def plot_spectra(signals: Mapping[str, ArrayLike], sample_rate_hz: float, path: PathLike, unit: str = "V",
+                 title: str = "", mark_hz: Optional[float] = None) -> str:
+    """Amplitude spectra (Hann window, one-sided, amplitude units) of several signals,
+    e.g. the inverted inputs of each method; ``mark_hz`` draws a dotted line (such as
+    the stage's resonance)."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(9, 4.8))
+    for name, x in signals.items():
+        a = np.asarray(x, dtype=np.float64)
+        a = a - a.mean()
+        win = np.hanning(a.size)
+        spec = 2 * np.abs(np.fft.rfft(a * win)) / win.sum()
+        f = np.fft.rfftfreq(a.size, 1.0 / sample_rate_hz)
+        ax.loglog(f[1:], np.maximum(spec[1:], 1e-12), lw=0.7, label=name)
+    if mark_hz:
+        ax.axvline(mark_hz, color="k", ls=":", lw=0.8, label=f"{mark_hz:g} Hz")
+    ax.set(xlabel="frequency [Hz]", ylabel=f"amplitude [{unit}]", title=title or "amplitude spectrum",
+           ylim=(1e-8, None))
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(loc="best")
+    return _save(fig, path)
