@@ -101,7 +101,7 @@ def identification_input(quick: bool = False) -> tuple[NDArray[np.float64], int]
     sine = 3.75 - 3.76 * (t / dur) * np.cos(2 * np.pi * f * t)
     lead = _ramp(0.0, 3.75, int(0.05 * FS))
     dwell = int((0.03 if quick else 0.05) * FS)
-    levels = [5.0, 2.0, 6.0, 3.0, 4.5, 1.0, 0.0]
+    levels = [1.5, 3.5, 2.0, 4.5, 3.0, 5.5, 4.0, 1.5, 0.0]  # steps small enough not to clip the ADC
     steps = [np.full(dwell, v) for v in levels]
     u = np.concatenate([lead, sine] + steps)
     return u, lead.size + sine.size
@@ -214,7 +214,7 @@ def run(out: Any = "preisach-demo", quick: bool = False, plots: Optional[bool] =
     # 5. diagnosis.
     with pr.step("diagnosing the sim-to-real gap (holdouts: steps with dwell, 50 Hz sine)"):
         dwell = int((0.03 if quick else 0.06) * FS)
-        u_steps = np.concatenate([np.zeros(dwell // 2)] + [np.full(dwell, v) for v in (1.0, 5.5, 2.5, 6.5, 3.5, 0.5)])
+        u_steps = np.concatenate([np.zeros(dwell // 2)] + [np.full(dwell, v) for v in (1.0, 3.0, 5.0, 3.5, 5.5, 4.0, 2.0, 0.5)])
         stage.reset()
         y_steps = stage.run(u_steps)
         t5 = np.arange(int((0.1 if quick else 0.2) * FS)) / FS
