@@ -9,6 +9,8 @@ use crate::grid::cell_index;
 pub struct Everett {
     n1: usize,
     table: Vec<f64>,
+    /// Diagonal masses w[k][k], for the interpolated evaluation.
+    diag: Vec<f64>,
 }
 
 impl Everett {
@@ -30,7 +32,8 @@ impl Everett {
                 table[a * n1 + b] = acc;
             }
         }
-        Everett { n1, table }
+        let diag = (0..n_h).map(|k| masses[cell_index(n_h, k, k)]).collect();
+        Everett { n1, table, diag }
     }
 
     /// `E(a, b)` at integer level indices (0 when a <= b).
@@ -40,8 +43,15 @@ impl Everett {
         self.table[a as usize * self.n1 + b as usize]
     }
 
-    /// `E` at continuous level coordinates: bilinear between the levels, i.e. each mass
-    /// spread uniformly over its cell (MATH.md, "The interpolated output").
+    /// `E` at continuous level coordinates for a >= b (MATH.md, "The interpolated
+    /// output"): each off-diagonal mass spread uniformly over its square cell, each
+    /// diagonal mass uniformly along the diagonal α = β of its cell (the reversible
+    /// relays). The square spread is exactly the bilinear interpolation of the table;
+    /// the diagonal spread differs from it only when a and b lie in the same cell k, by
+    /// `w_kk · f_b · (f_a − 1)` (line fraction f_a − f_b against square f_a (1 − f_b)).
+    /// Spreading the diagonal mass over the square would put relays with α < β in the
+    /// model and make the output jump at a reversal inside a diagonal cell.
+    /// Both parts are affine in each coordinate, so the output stays piecewise linear.
     #[inline]
     pub fn bilinear(&self, a: f64, b: f64) -> f64 {
         let n_h = self.n1 - 1;
@@ -56,7 +66,12 @@ impl Everett {
         let e11 = t[r1 + ib + 1];
         let lo = e00 + fb * (e01 - e00);
         let hi = e10 + fb * (e11 - e10);
-        lo + fa * (hi - lo)
+        let e = lo + fa * (hi - lo);
+        if ia == ib {
+            e + self.diag[ia] * fb * (fa - 1.0)
+        } else {
+            e
+        }
     }
 
     /// Total mass `E(n_h, 0)`.

@@ -55,7 +55,8 @@ fn fit<'py>(
 }
 
 /// The merged regression rows in mass coordinates: (A (rows, n_q + 1) with the offset
-/// column last, counts, mean targets, within-row sum of squares). Dense: for tests and
+/// column last, counts, targets, within-row sum of squares). Objective:
+/// (Σ counts·(A x − targets)² + within) / n_samples. Dense: for tests and
 /// comparisons only.
 #[pyfunction]
 #[pyo3(signature = (u, y, n_h, u_range, interpolated=false))]
@@ -83,7 +84,7 @@ fn regression_rows<'py>(
         for r in 0..m {
             let row = &mut a[r * (n_q + 1)..(r + 1) * (n_q + 1)];
             rows.add_mass_row(r, 1.0, &mut row[..n_q]);
-            row[n_q] = 1.0;
+            row[n_q] = rows.offset_coef[r];
         }
         let a = a.into_pyarray(py).reshape([m, n_q + 1])?;
         Ok((a, rows.weight.into_pyarray(py), rows.target.into_pyarray(py), rows.within_ss))

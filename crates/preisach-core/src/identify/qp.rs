@@ -212,7 +212,7 @@ pub fn solve_everett(pb: &Problem) -> Result<Solution> {
     let n_h = rows.n_h;
     let n_q = rows.n_vars();
     let n = n_q + 1;
-    let n_total: f64 = rows.weight.iter().sum();
+    let n_total = rows.n_samples as f64;
     let mut trip: Vec<(u64, f64)> = Vec::new();
     let mut q = vec![0.0; n];
     let mut ent: Vec<(usize, f64)> = Vec::new();
@@ -220,9 +220,9 @@ pub fn solve_everett(pb: &Problem) -> Result<Solution> {
         let (idx, val) = rows.row(r);
         ent.clear();
         ent.extend(idx.iter().map(|&i| i as usize).zip(val.iter().copied()));
-        ent.push((n_q, 1.0)); // offset
+        ent.push((n_q, rows.offset_coef[r]));
         let cw = 2.0 * rows.weight[r] / n_total;
-        let yt = (rows.target[r] - pb.mu) / pb.scale;
+        let yt = (rows.target[r] - pb.mu * rows.offset_coef[r]) / pb.scale;
         for (k, &(i, vi)) in ent.iter().enumerate() {
             q[i] -= cw * yt * vi;
             for &(j, vj) in &ent[k..] {
@@ -307,7 +307,7 @@ pub fn solve_dense(pb: &Problem) -> Result<Solution> {
     }
     let nf = free.len();
     let n = nf + 1;
-    let n_total: f64 = rows.weight.iter().sum();
+    let n_total = rows.n_samples as f64;
     let m = rows.n_rows();
     let mut bmat = faer::Mat::<f64>::zeros(m, n);
     let mut z = faer::Mat::<f64>::zeros(m, 1);
@@ -319,8 +319,8 @@ pub fn solve_dense(pb: &Problem) -> Result<Solution> {
         for (k, &c) in free.iter().enumerate() {
             bmat[(r, k)] = dense[c];
         }
-        bmat[(r, nf)] = sw;
-        z[(r, 0)] = sw * (rows.target[r] - pb.mu) / pb.scale;
+        bmat[(r, nf)] = sw * rows.offset_coef[r];
+        z[(r, 0)] = sw * (rows.target[r] - pb.mu * rows.offset_coef[r]) / pb.scale;
     }
     let g = bmat.transpose() * &bmat;
     let bz = bmat.transpose() * &z;

@@ -29,7 +29,9 @@ pub struct Rows {
     pub indptr: Vec<usize>,
     pub idx: Vec<u32>,
     pub val: Vec<f64>,
-    /// Number of samples merged into each row.
+    /// Coefficient of the offset in each row (1 for plain rows; pseudo-rows scale it).
+    pub offset_coef: Vec<f64>,
+    /// Number of samples merged into each row (1 for pseudo-rows).
     pub weight: Vec<f64>,
     /// Mean target of each row.
     pub target: Vec<f64>,
@@ -39,6 +41,33 @@ pub struct Rows {
 }
 
 impl Rows {
+    fn empty(n_h: usize, interpolated: bool, n_samples: usize) -> Self {
+        Rows {
+            n_h,
+            interpolated,
+            indptr: vec![0],
+            idx: Vec::new(),
+            val: Vec::new(),
+            offset_coef: Vec::new(),
+            weight: Vec::new(),
+            target: Vec::new(),
+            within_ss: 0.0,
+            n_samples,
+        }
+    }
+
+    /// Append a row (entries sorted, offset coefficient last in `entries` excluded).
+    fn push(&mut self, entries: &[(u32, f64)], offset_coef: f64, weight: f64, target: f64) {
+        for &(i, v) in entries {
+            self.idx.push(i);
+            self.val.push(v);
+        }
+        self.indptr.push(self.idx.len());
+        self.offset_coef.push(offset_coef);
+        self.weight.push(weight);
+        self.target.push(target);
+    }
+
     pub fn n_rows(&self) -> usize {
         self.weight.len()
     }
@@ -52,7 +81,8 @@ impl Rows {
     }
 
     /// Row `r` in mass coordinates, added into `out` (n_q, packed like the masses):
-    /// `E(a, b)` covers the cells with i >= b and j < a. The offset column is implicit.
+    /// `E(a, b)` covers the cells with i >= b and j < a. The offset coefficient is
+    /// `offset_coef[r]`.
     pub fn add_mass_row(&self, r: usize, scale: f64, out: &mut [f64]) {
         let (idx, val) = self.row(r);
         for (&k, &v) in idx.iter().zip(val) {
@@ -85,21 +115,14 @@ pub fn everett_coords(k: usize) -> (usize, usize) {
 /// Build the merged rows of input `u` and target `y` (same length, finite).
 /// `interpolated` selects the model whose masses are spread over their cells.
 pub fn build_rows(grid: &Grid, u: &[f64], y: &[f64], interpolated: bool) -> Rows {
+    if interpolated {
+        return build_rows_interpolated(grid, u, y);
+    }
     let n_h = grid.n_h();
     let mut mem: Memory<f64> = Memory::new(0.0, n_h + 3);
     // The rows only need the extrema, not the running sums.
     let no_e = |_: f64, _: f64| 0.0;
-    let mut rows = Rows {
-        n_h,
-        interpolated,
-        indptr: vec![0],
-        idx: Vec::new(),
-        val: Vec::new(),
-        weight: Vec::new(),
-        target: Vec::new(),
-        within_ss: 0.0,
-        n_samples: u.len(),
-    };
+    let mut rows = Rows::empty(n_h, false, u.len());
     let mut m2: Vec<f64> = Vec::new();
     let mut seen: HashMap<Vec<u64>, usize> = HashMap::new();
     let mut key: Vec<u64> = Vec::with_capacity(n_h + 3);
@@ -107,7 +130,7 @@ pub fn build_rows(grid: &Grid, u: &[f64], y: &[f64], interpolated: bool) -> Rows
     let mut prev_p = f64::NAN;
     let mut row = 0usize;
     for (&x, &yt) in u.iter().zip(y) {
-        let p = if interpolated { grid.position(x) } else { grid.quantize(x) as f64 };
+        let p = grid.quantize(x) as f64;
         if p != prev_p {
             mem.apply(p, &no_e);
             prev_p = p;
@@ -119,14 +142,8 @@ pub fn build_rows(grid: &Grid, u: &[f64], y: &[f64], interpolated: bool) -> Rows
                 None => {
                     let r = rows.weight.len();
                     seen.insert(key.clone(), r);
-                    emit_row(&mem, n_h, &mut scratch);
-                    for &(i, v) in &scratch {
-                        rows.idx.push(i);
-                        rows.val.push(v);
-                    }
-                    rows.indptr.push(rows.idx.len());
-                    rows.weight.push(0.0);
-                    rows.target.push(0.0);
+                    emit_row(mem.turns(), mem.current(), n_h, &mut scratch);
+                    rows.push(&scratch, 1.0, 0.0, 0.0);
                     m2.push(0.0);
                     r
                 }
@@ -143,12 +160,128 @@ pub fn build_rows(grid: &Grid, u: &[f64], y: &[f64], interpolated: bool) -> Rows
     rows
 }
 
-/// Everett-coordinate coefficients of the current state: `2 S⁺ − E(n_h, 0)`.
-fn emit_row(mem: &Memory<f64>, n_h: usize, out: &mut Vec<(u32, f64)>) {
+/// Moments of the samples sharing one interpolated group (same extrema, current input in
+/// the same cell): the row is `(1 − λ) r_a + λ r_b` with λ the fractional position.
+#[derive(Default, Clone, Copy)]
+struct Moments {
+    aa: f64,
+    ab: f64,
+    bb: f64,
+    ay: f64,
+    by: f64,
+    yy: f64,
+}
+
+/// Interpolated rows, merged exactly. Within a group (same stored extrema, current input
+/// in the same cell) every Everett value involving the current input is linear in its
+/// fractional position λ, so each sample's row is `(1 − λ) r_a + λ r_b`. The group's
+/// least-squares contribution is fixed by the 2×2 moment matrix M of (1 − λ, λ) and the
+/// moments with y: with M = L Lᵀ, the two pseudo-rows `L₁₁ r_a + L₂₁ r_b` and `L₂₂ r_b`
+/// with targets `L⁻¹ [Σ(1−λ)y, Σλy]` reproduce it to rounding.
+fn build_rows_interpolated(grid: &Grid, u: &[f64], y: &[f64]) -> Rows {
+    let n_h = grid.n_h();
+    let mut mem: Memory<f64> = Memory::new(0.0, 4 * (n_h + 3));
+    let no_e = |_: f64, _: f64| 0.0;
+    let mut groups: Vec<(Vec<f64>, f64, usize)> = Vec::new(); // (turns, cur cell, count)
+    let mut mom: Vec<Moments> = Vec::new();
+    let mut seen: HashMap<Vec<u64>, usize> = HashMap::new();
+    let mut key: Vec<u64> = Vec::with_capacity(n_h + 3);
+    let mut prev_p = f64::NAN;
+    let mut g = 0usize;
+    let mut lam = 0.0;
+    for (&x, &yt) in u.iter().zip(y) {
+        let p = grid.position(x);
+        if p != prev_p {
+            mem.apply(p, &no_e);
+            prev_p = p;
+            let cell = (p as usize).min(n_h - 1);
+            lam = p - cell as f64;
+            key.clear();
+            key.extend(mem.turns().iter().map(|t| t.to_bits()));
+            key.push(cell as u64);
+            g = match seen.get(&key) {
+                Some(&k) => k,
+                None => {
+                    let k = groups.len();
+                    seen.insert(key.clone(), k);
+                    groups.push((mem.turns().to_vec(), cell as f64, 0));
+                    mom.push(Moments::default());
+                    k
+                }
+            };
+        }
+        let (a, b) = (1.0 - lam, lam);
+        let m = &mut mom[g];
+        m.aa += a * a;
+        m.ab += a * b;
+        m.bb += b * b;
+        m.ay += a * yt;
+        m.by += b * yt;
+        m.yy += yt * yt;
+        groups[g].2 += 1;
+    }
+    let mut rows = Rows::empty(n_h, true, u.len());
+    let (mut ra, mut rb, mut row) = (Vec::new(), Vec::new(), Vec::new());
+    let mut explained = 0.0;
+    let mut total_yy = 0.0;
+    for ((turns, cell, count), m) in groups.iter().zip(&mom) {
+        total_yy += m.yy;
+        emit_row(turns, *cell, n_h, &mut ra);
+        emit_row(turns, *cell + 1.0, n_h, &mut rb);
+        // Cholesky of [[aa, ab], [ab, bb]].
+        let l11 = m.aa.sqrt();
+        let scale = (m.aa + m.bb).max(1e-300);
+        if l11 > 1e-12 * scale.sqrt() {
+            let l21 = m.ab / l11;
+            let d = m.bb - l21 * l21;
+            let z1 = m.ay / l11;
+            combine(&ra, l11, &rb, l21, &mut row);
+            rows.push(&row, l11 + l21, 1.0, z1);
+            explained += z1 * z1;
+            if d > 1e-12 * scale {
+                let l22 = d.sqrt();
+                let z2 = (m.by - l21 * z1) / l22;
+                combine(&rb, l22, &[], 0.0, &mut row);
+                rows.push(&row, l22, 1.0, z2);
+                explained += z2 * z2;
+            }
+        } else {
+            // Every sample at λ = 1 (the cell's upper level): one row r_b.
+            let l = m.bb.sqrt();
+            let z = m.by / l;
+            combine(&rb, l, &[], 0.0, &mut row);
+            rows.push(&row, l, 1.0, z);
+            explained += z * z;
+        }
+        let _ = count;
+    }
+    rows.within_ss = (total_yy - explained).max(0.0);
+    rows
+}
+
+/// `out = ca·a + cb·b` for sorted sparse rows (the offset column scales with them).
+fn combine(a: &[(u32, f64)], ca: f64, b: &[(u32, f64)], cb: f64, out: &mut Vec<(u32, f64)>) {
     out.clear();
-    let t = mem.turns();
+    out.extend(a.iter().map(|&(i, v)| (i, ca * v)));
+    out.extend(b.iter().map(|&(i, v)| (i, cb * v)));
+    out.sort_unstable_by_key(|e| e.0);
+    let mut w = 0usize;
+    for r in 0..out.len() {
+        if w > 0 && out[w - 1].0 == out[r].0 {
+            out[w - 1].1 += out[r].1;
+        } else {
+            out[w] = out[r];
+            w += 1;
+        }
+    }
+    out.truncate(w);
+}
+
+/// Everett-coordinate coefficients of a state (stored extrema `t`, current input `cur`):
+/// `2 S⁺ − E(n_h, 0)`.
+fn emit_row(t: &[f64], cur: f64, n_h: usize, out: &mut Vec<(u32, f64)>) {
+    out.clear();
     let n = t.len();
-    let cur = mem.current();
     let closed = if n % 2 == 1 { (n - 1) / 2 } else { (n - 2) / 2 };
     for k in 1..=closed {
         let (big, m_prev, m) = (t[2 * k - 1], t[2 * k - 2], t[2 * k]);
@@ -198,6 +331,11 @@ fn expand(a: f64, b: f64, c: f64, n_h: usize, out: &mut Vec<(u32, f64)>) {
                 out.push((everett_var(aa, bb) as u32, c * wa * wb));
             }
         }
+    }
+    // Diagonal mass along the diagonal, not over the square (see `Everett::bilinear`):
+    // w_kk = E(k + 1, k).
+    if ia == ib && fb != 0.0 && fa != 1.0 {
+        out.push((everett_var(ia + 1, ia) as u32, c * fb * (fa - 1.0)));
     }
 }
 
