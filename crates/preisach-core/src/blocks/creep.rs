@@ -28,8 +28,10 @@ impl CreepParams {
     pub fn log_law(gamma: f64, tau_min_s: f64, tau_max_s: f64) -> Self {
         let decades = (tau_max_s / tau_min_s).log10().round().max(0.0) as usize;
         let n = decades + 1;
-        let time_constants_s =
-            (0..n).map(|k| tau_min_s * (tau_max_s / tau_min_s).powf(k as f64 / decades.max(1) as f64)).collect();
+        let ratio = (tau_max_s / tau_min_s).powf(1.0 / decades.max(1) as f64);
+        // Whole decades as 10^k (clean numbers in the JSON), otherwise the even ratio.
+        let ratio = if (ratio - 10.0).abs() < 1e-9 { 10.0 } else { ratio };
+        let time_constants_s = (0..n).map(|k| tau_min_s * ratio.powi(k as i32)).collect();
         CreepParams { gains: vec![gamma; n], time_constants_s }
     }
 }
