@@ -149,3 +149,16 @@ def test_missing_scipy_is_one_clear_line(tmp_path):
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert r.returncode == 1
     assert r.stderr.strip() == "preisach: error: reading .mat files needs SciPy: pip install 'preisach[mat]'"
+
+
+def test_single_channel_capture_and_mat_v4(tmp_path):
+    p = tmp_path / "one.mat"
+    sio.savemat(p, {"cap": _dspace_struct(names=("Plant/u",), data=(U,))})
+    assert [c.name for c in list_channels(p)] == ["Time", "Plant/u"]
+    rec = read_mat(p, u="u")
+    np.testing.assert_array_equal(rec["t"], T)
+    assert set(rec) == {"t", "u"}
+    p4 = tmp_path / "v4.mat"
+    sio.savemat(p4, {"t": T.reshape(-1, 1), "u": U.reshape(-1, 1), "y": Y.reshape(-1, 1)}, format="4")
+    rec = read_mat(p4, t="t", u="u", y="y")
+    np.testing.assert_array_equal(rec["y"], Y)

@@ -49,7 +49,7 @@ class Channel:
 
 def _loadmat(p: Path) -> dict[str, Any]:
     try:
-        import scipy.io
+        import scipy.io  # type: ignore[import-untyped]
     except ImportError:
         raise ValueError(SCIPY_HINT) from None
     try:
