@@ -222,12 +222,18 @@ fn build_rows_interpolated(grid: &Grid, u: &[f64], y: &[f64]) -> Rows {
     }
     let mut rows = Rows::empty(n_h, true, u.len());
     let (mut ra, mut rb, mut row) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut r1, mut r2) = (Vec::new(), Vec::new());
     let mut explained = 0.0;
     let mut total_yy = 0.0;
     for ((turns, cell, count), m) in groups.iter().zip(&mom) {
         total_yy += m.yy;
-        emit_row(turns, *cell, n_h, &mut ra);
-        emit_row(turns, *cell + 1.0, n_h, &mut rb);
+        // The row is affine in λ on the whole cell, but at λ = 1 the current input would
+        // be attributed to the next cell; so evaluate at two interior points and
+        // extrapolate: r(0) = 2 r(1/3) − r(2/3), r(1) = 2 r(2/3) − r(1/3).
+        emit_row(turns, *cell + 1.0 / 3.0, n_h, &mut r1);
+        emit_row(turns, *cell + 2.0 / 3.0, n_h, &mut r2);
+        combine(&r1, 2.0, &r2, -1.0, &mut ra);
+        combine(&r2, 2.0, &r1, -1.0, &mut rb);
         // Cholesky of [[aa, ab], [ab, bb]].
         let l11 = m.aa.sqrt();
         let scale = (m.aa + m.bb).max(1e-300);
