@@ -1,14 +1,18 @@
 """Type stubs of the compiled module `preisach._preisach` (checked by mypy.stubtest)."""
-from typing import Any
+from typing import Any, Optional
+
+from typing_extensions import final
 
 import numpy as np
 from numpy.typing import NDArray
 
 __version__: str
+__all__ = ["__version__", "Model", "Stream", "fit", "regression_rows", "invert", "InverseStream", "Chain", "run_loop"]
 
 # --- core (model, stream, identification) ---
+@final
 class Model:
-    def __init__(self, weights: NDArray[np.float64], lo: float, hi: float, offset: float) -> None: ...
+    def __new__(cls, weights: NDArray[np.float64], lo: float, hi: float, offset: float) -> Model: ...
     def weights(self) -> NDArray[np.float64]: ...
     @property
     def n_h(self) -> int: ...
@@ -24,17 +28,36 @@ class Model:
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
     def stream(self, state: NDArray[np.float64]) -> Stream: ...
 
+@final
 class Stream:
     def step(self, u: float) -> float: ...
     def process(self, block: NDArray[np.float64]) -> NDArray[np.float64]: ...
     def get_state(self) -> NDArray[np.float64]: ...
     def set_state(self, state: NDArray[np.float64]) -> None: ...
 
+def fit(
+    u: NDArray[np.float64],
+    y: NDArray[np.float64],
+    n_h: int,
+    u_range: Optional[tuple[float, float]] = None,
+    reg: float = 0.0,
+    solver: str = "auto",
+    interpolated: bool = False,
+) -> tuple[Model, dict[str, Any]]: ...
+def regression_rows(
+    u: NDArray[np.float64],
+    y: NDArray[np.float64],
+    n_h: int,
+    u_range: tuple[float, float],
+    interpolated: bool = False,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float]: ...
+
 # --- inversion ---
 def invert(
     model: Model, r: NDArray[np.float64], method: str = "closest", lookahead: int | None = None
 ) -> tuple[NDArray[np.float64], int]: ...
 
+@final
 class InverseStream:
     def __new__(cls, model: Model, method: str = "closest", lookahead: int | None = None) -> InverseStream: ...
     def step(self, r: float) -> float: ...
@@ -61,6 +84,7 @@ class InverseStream:
     ) -> None: ...
 
 # --- simulator ---
+@final
 class Chain:
     @staticmethod
     def from_json(text: str) -> Chain: ...
