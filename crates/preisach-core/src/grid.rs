@@ -48,7 +48,7 @@ impl Grid {
             ));
         }
         let delta = (hi - lo) / n_h as f64;
-        if !(delta > 0.0) || !delta.is_finite() {
+        if delta.is_nan() || delta <= 0.0 || !delta.is_finite() {
             return Err(PreisachError::invalid("u_range", "span too small or too large for n_h"));
         }
         let thresholds = (0..n_h).map(|j| lo + (j as f64 + 0.5) * delta).collect();

@@ -46,7 +46,7 @@ fn neighbour_pairs(n_h: usize) -> Vec<(usize, usize)> {
     let mut p = Vec::new();
     for i in 0..n_h {
         for j in i..n_h {
-            if i + 1 <= j {
+            if i < j {
                 p.push((cell_index(n_h, i, j), cell_index(n_h, i + 1, j)));
             }
             if j + 1 < n_h {
