@@ -270,17 +270,7 @@ fn combine(a: &[(u32, f64)], ca: f64, b: &[(u32, f64)], cb: f64, out: &mut Vec<(
     out.clear();
     out.extend(a.iter().map(|&(i, v)| (i, ca * v)));
     out.extend(b.iter().map(|&(i, v)| (i, cb * v)));
-    out.sort_unstable_by_key(|e| e.0);
-    let mut w = 0usize;
-    for r in 0..out.len() {
-        if w > 0 && out[w - 1].0 == out[r].0 {
-            out[w - 1].1 += out[r].1;
-        } else {
-            out[w] = out[r];
-            w += 1;
-        }
-    }
-    out.truncate(w);
+    sort_and_merge(out);
 }
 
 /// Everett-coordinate coefficients of a state (stored extrema `t`, current input `cur`):
@@ -301,8 +291,13 @@ fn emit_row(t: &[f64], cur: f64, n_h: usize, out: &mut Vec<(u32, f64)>) {
         expand(t[n - 1], cur, -2.0, n_h, out);
     }
     out.push((everett_var(n_h, 0) as u32, -1.0));
+    sort_and_merge(out);
+    out.retain(|e| e.1 != 0.0);
+}
+
+/// Sort sparse entries by index and sum duplicates, in place.
+fn sort_and_merge(out: &mut Vec<(u32, f64)>) {
     out.sort_unstable_by_key(|e| e.0);
-    // Merge duplicates in place.
     let mut w = 0usize;
     for r in 0..out.len() {
         if w > 0 && out[w - 1].0 == out[r].0 {
@@ -313,7 +308,6 @@ fn emit_row(t: &[f64], cur: f64, n_h: usize, out: &mut Vec<(u32, f64)>) {
         }
     }
     out.truncate(w);
-    out.retain(|e| e.1 != 0.0);
 }
 
 /// Add `c · E(a, b)` at continuous positions: bilinear weights on the four surrounding
