@@ -7,23 +7,34 @@
 //!   non-negative; MATH.md "Closest match is a search over a monotone function"), so the
 //!   search is a galloping binary search from the previous level over
 //!   [`PreisachModel::peek_level`]: O(log n_h) peeks worst case, one or two on a smooth
-//!   reference, no state copies, no scan over the levels.
-//! - [`interpolate`] / [`Interpolator`]: knots at the riser midpoints of the
+//!   reference, no state copies, no scan over the levels. Optimal at every sample.
+//! - [`monotone_level`]: the direction-consistent ("monotone") closest match that the
+//!   interpolation is built on: the best level among those on the reference's side of
+//!   the current level (see below).
+//! - [`interpolate`] / [`Interpolator`]: knots at the riser midpoints of the monotone
 //!   closest-match signal, linear in between; offline, or streaming with a preview
 //!   of `lookahead` samples (output delayed by exactly `lookahead` samples).
 //! - [`continuous_position`]: inverts the interpolated model `y_c(u)` (continuous,
 //!   piecewise linear, monotone on each branch) exactly, with no look-ahead.
 //!
+//! Why the interpolation does not use the per-sample closest match: the per-sample
+//! optimum dithers. After a one-level rise switches a whole column of cells on, moving
+//! a few levels down and back up gives outputs in between, so on a plain rising
+//! reference the optimum keeps reversing (5 Hz sine at 100 kHz, n_h = 100: 5,374 steps,
+//! 3,279 of them reversals), every reversal traces a minor loop, and knots at every
+//! riser inherit the dither (only 1.4 dB less energy above 500 Hz than the closest
+//! match itself). The paper's Fig. 9 shows a monotone staircase; the monotone closest
+//! match never moves the input against the reference (700 steps, none reversing inside
+//! a monotone stretch of the reference) and its interpolation is tens of dB quieter.
+//!
 //! Ties and plateaus (zero masses give levels with equal output) go to the input
 //! nearest the previous one; references outside the reachable output range
 //! `[offset − total, offset + total]` saturate and are counted, never an error.
 //!
-//! Note on the interpolated model as implemented ([`crate::everett::Everett::bilinear`]):
-//! a diagonal cell's mass is spread over the whole square cell, so after a reversal
-//! inside diagonal cell k the output jumps by `2 f (1 − f) w_kk` (f = the fraction of
-//! the cell). It is continuous when the diagonal masses are zero. Where it jumps over
-//! the reference, no exact preimage exists and [`continuous_position`] returns the side
-//! of the jump nearer the reference.
+//! The interpolated model ([`crate::everett::Everett::bilinear`]) puts a diagonal cell's
+//! mass along the diagonal, so `y_c` is continuous everywhere (also at reversals inside
+//! diagonal cells) and piecewise linear with breakpoints at the levels and at the
+//! stored extrema: every reachable reference has an exact preimage.
 
 use std::collections::VecDeque;
 use std::str::FromStr;
@@ -47,7 +58,8 @@ pub const MAX_LOOKAHEAD: usize = 1 << 24;
 pub enum Method {
     /// Closest match (Tan et al. 2001): the level whose output is nearest.
     Closest,
-    /// Closest match smoothed by linear interpolation between its steps (seed Fig. 9).
+    /// The monotone closest match ([`monotone_level`]) smoothed by linear interpolation
+    /// between its steps (seed Fig. 9).
     Interpolated,
     /// Exact inverse of the interpolated (continuous) model, no look-ahead.
     Continuous,
@@ -218,6 +230,59 @@ pub fn closest_run(model: &PreisachModel, mem: &mut StepMemory, r: &[f64], out: 
     sat
 }
 
+/// The reference before the first sample of a run: any first reference counts as
+/// rising, which is the only way out of negative saturation (level 0) anyway.
+pub const NO_PREVIOUS_REFERENCE: f64 = f64::NEG_INFINITY;
+
+/// The monotone (direction-consistent) closest-match level for reference `r` after the
+/// reference `r_prev`, from memory `mem` (nothing mutated), and whether `r` is outside
+/// the reachable range.
+///
+/// The reference direction is the sign of `r − r_prev`. Rising: the best level among
+/// `k >= p` (p = the current level); falling: among `k <= p`; constant: stay at `p`.
+/// Ties go to the level nearest `p`, as in [`closest_level`]. So the input never moves
+/// against the reference and never dithers on a constant one: no minor loops are
+/// traced inside a monotone stretch of the reference.
+///
+/// Restricted to `k >= p` the output `y(k)` is non-decreasing from `y(p)`, so if
+/// `y(p) >= r` staying is optimal there (and the search is skipped); otherwise the
+/// unrestricted closest match is already `> p` or `p` itself (its minimal-error run
+/// reaches above `y(p)`), so it is the restricted optimum. Falling is the mirror image.
+#[inline]
+pub fn monotone_level(model: &PreisachModel, mem: &StepMemory, r: f64, r_prev: f64, tol: f64) -> (u32, bool) {
+    let p = mem.current();
+    let sat = outside(model, r, tol);
+    if r == r_prev {
+        return (p, sat);
+    }
+    let yp = model.output_of(mem.s_plus(&model.e_step()));
+    let rising = r > r_prev;
+    if (rising && yp >= r) || (!rising && yp <= r) {
+        return (p, sat);
+    }
+    let (k, _) = closest_level(model, mem, r, tol);
+    // The clamp is the restriction itself; by the argument above it never binds.
+    (if rising { k.max(p) } else { k.min(p) }, sat)
+}
+
+/// Monotone closest match over a whole reference from memory `mem` (advanced in place),
+/// starting after the reference `r_prev` ([`NO_PREVIOUS_REFERENCE`] for a fresh run).
+/// Writes the input levels to `out`, returns the number of saturated samples and the
+/// last reference. `r` must be finite (checked by the caller).
+pub fn monotone_run(model: &PreisachModel, mem: &mut StepMemory, mut r_prev: f64, r: &[f64], out: &mut [f64]) -> (u64, f64) {
+    let tol = tolerance(model);
+    let e = model.e_step();
+    let mut sat = 0u64;
+    for (o, &x) in out.iter_mut().zip(r) {
+        let (k, s) = monotone_level(model, mem, x, r_prev, tol);
+        sat += s as u64;
+        mem.apply(k, &e);
+        *o = model.grid().level(k as usize);
+        r_prev = x;
+    }
+    (sat, r_prev)
+}
+
 // ---------------------------------------------------------------------------------
 // Continuous inverse of the interpolated model.
 
@@ -370,7 +435,8 @@ fn lerp_step(u_prev: f64, v: f64, t: u64, t_tgt: u64) -> f64 {
     }
 }
 
-/// Offline interpolation of a closest-match signal `u_cm` (seed Fig. 9).
+/// Offline interpolation of a closest-match signal `u_cm` (seed Fig. 9; [`invert`] feeds
+/// it the monotone closest match, [`monotone_run`]).
 ///
 /// Knots: `(0, u_cm[0])` and, at every step `t_s` from level `a` to level `b`,
 /// `(t_s, (a + b) / 2)` (the riser midpoint). Sample `t` moves from `u[t−1]` towards
@@ -500,7 +566,7 @@ pub fn invert(model: &PreisachModel, r: &[f64], method: Method, lookahead: Optio
         Method::Closest => closest_run(model, &mut model.memory(), r, &mut u),
         Method::Interpolated => {
             let mut cm = vec![0.0; r.len()];
-            let sat = closest_run(model, &mut model.memory(), r, &mut cm);
+            let (sat, _) = monotone_run(model, &mut model.memory(), NO_PREVIOUS_REFERENCE, r, &mut cm);
             interpolate(&cm, lookahead, &mut u);
             sat
         }
@@ -526,7 +592,8 @@ fn check_lookahead(method: Method, lookahead: Option<usize>, streaming: bool) ->
 #[derive(Debug, Clone)]
 enum Engine {
     Closest(StepMemory),
-    Interpolated(StepMemory, Interpolator),
+    /// The monotone closest match's memory, the previous reference, the interpolator.
+    Interpolated(StepMemory, f64, Interpolator),
     Continuous(InterpMemory),
 }
 
@@ -556,6 +623,9 @@ pub struct InverterState {
     pub u_prev: f64,
     pub last_cm: f64,
     pub knots: Vec<(u64, f64)>,
+    /// Interpolation only: the previous reference, which sets the direction of the
+    /// monotone closest match ([`NO_PREVIOUS_REFERENCE`] before the first sample).
+    pub r_prev: f64,
 }
 
 impl Inverter {
@@ -567,7 +637,8 @@ impl Inverter {
         let engine = match method {
             Method::Closest => Engine::Closest(model.memory()),
             Method::Interpolated => {
-                Engine::Interpolated(model.memory(), Interpolator::new(lookahead.unwrap_or(0), model.grid().lo())?)
+                let interp = Interpolator::new(lookahead.unwrap_or(0), model.grid().lo())?;
+                Engine::Interpolated(model.memory(), NO_PREVIOUS_REFERENCE, interp)
             }
             Method::Continuous => Engine::Continuous(model.interp_memory()),
         };
@@ -580,7 +651,7 @@ impl Inverter {
     /// Look-ahead (delay) in samples: the interpolated method's `L`, else 0.
     pub fn lookahead(&self) -> usize {
         match &self.engine {
-            Engine::Interpolated(_, i) => i.lookahead(),
+            Engine::Interpolated(_, _, i) => i.lookahead(),
             _ => 0,
         }
     }
@@ -604,8 +675,9 @@ impl Inverter {
                 mem.apply(k, &m.e_step());
                 m.grid().level(k as usize)
             }
-            Engine::Interpolated(mem, interp) => {
-                let (k, s) = closest_level(m, mem, r, self.tol);
+            Engine::Interpolated(mem, r_prev, interp) => {
+                let (k, s) = monotone_level(m, mem, r, *r_prev, self.tol);
+                *r_prev = r;
                 self.saturated += s as u64;
                 mem.apply(k, &m.e_step());
                 interp.push(m.grid().level(k as usize))
@@ -633,8 +705,9 @@ impl Inverter {
         self.saturated = 0;
         match &mut self.engine {
             Engine::Closest(mem) => mem.reset(),
-            Engine::Interpolated(mem, i) => {
+            Engine::Interpolated(mem, r_prev, i) => {
                 mem.reset();
+                *r_prev = NO_PREVIOUS_REFERENCE;
                 i.reset();
             }
             Engine::Continuous(imem) => imem.reset(),
@@ -650,11 +723,13 @@ impl Inverter {
             u_prev: self.model.grid().lo(),
             last_cm: self.model.grid().lo(),
             knots: Vec::new(),
+            r_prev: NO_PREVIOUS_REFERENCE,
         };
         match &self.engine {
             Engine::Closest(mem) => s.memory = mem.snapshot().into_iter().map(f64::from).collect(),
-            Engine::Interpolated(mem, i) => {
+            Engine::Interpolated(mem, r_prev, i) => {
                 s.memory = mem.snapshot().into_iter().map(f64::from).collect();
+                s.r_prev = *r_prev;
                 s.t = i.t;
                 s.u_prev = i.u_prev;
                 s.last_cm = i.last_cm;
@@ -689,8 +764,15 @@ impl Inverter {
                 for &k in &s.memory {
                     mem.apply(k as u32, &m.e_step());
                 }
-                if let Engine::Interpolated(_, old) = &self.engine {
-                    Engine::Interpolated(mem, restore_interpolator(old, s)?)
+                if let Engine::Interpolated(_, _, old) = &self.engine {
+                    // -inf is the "no previous reference" marker; NaN and +inf are invalid.
+                    if s.r_prev.is_nan() || s.r_prev == f64::INFINITY {
+                        return Err(PreisachError::invalid(
+                            "state",
+                            format!("r_prev must be finite or -inf (no previous reference), got {}", s.r_prev),
+                        ));
+                    }
+                    Engine::Interpolated(mem, s.r_prev, restore_interpolator(old, s)?)
                 } else {
                     Engine::Closest(mem)
                 }

@@ -149,24 +149,17 @@ fn forward_model_on_closest_match_stays_within_half_the_local_step() {
     }
 }
 
-/// A random model without diagonal masses: its interpolated output is continuous (the
-/// bilinear Everett table puts part of a diagonal cell's mass below the diagonal, which
-/// makes `y_c` jump at a reversal inside that cell; see `invert.rs`).
-fn off_diagonal_model(rng: &mut Rng, n_h: usize, sparse: bool) -> PreisachModel {
-    let base = if sparse { sparse_model(rng, n_h) } else { random_model(rng, n_h) };
-    let mut d = base.dense_weights();
-    for i in 0..n_h {
-        d[i * n_h + i] = 0.0;
-    }
-    PreisachModel::from_dense(0.0, 1.0, n_h, &d, base.offset()).unwrap()
-}
-
 #[test]
 fn continuous_inverse_reproduces_reachable_references_through_the_interpolated_model() {
+    // Random models WITH diagonal masses (dense and sparse): the interpolated output is
+    // continuous everywhere (diagonal mass along the diagonal), so every reachable
+    // reference has an exact preimage and must be reproduced to rounding.
     let mut rng = Rng::new(13);
-    for trial in 0..12 {
-        let n_h = [2usize, 3, 10, 40][trial % 4];
-        let model = off_diagonal_model(&mut rng, n_h, trial % 3 == 2);
+    let mut reversals_in_diagonal_cells = 0usize;
+    for trial in 0..16 {
+        let n_h = [1usize, 2, 3, 10, 40, 7, 25, 60][trial % 8];
+        let model = if trial % 3 == 2 { sparse_model(&mut rng, n_h) } else { random_model(&mut rng, n_h) };
+        assert!((0..n_h).any(|i| model.dense_weights()[i * n_h + i] > 0.0) || trial % 3 == 2);
         let total = model.everett().total();
         let (ymin, ymax) = (model.offset() - total, model.offset() + total);
         let r: Vec<f64> = random_reference(&mut rng, &model, 3000).into_iter().map(|x| x.clamp(ymin, ymax)).collect();
@@ -175,33 +168,18 @@ fn continuous_inverse_reproduces_reachable_references_through_the_interpolated_m
         let mut mem = model.interp_memory();
         let mut y = vec![0.0; u.len()];
         model.run_interpolated(&mut mem, &u, &mut y);
+        let scale = (ymax - ymin).max(f64::MIN_POSITIVE);
         for t in 0..r.len() {
-            assert!((y[t] - r[t]).abs() <= 1e-9, "trial {trial} t={t}: {} vs {}", y[t], r[t]);
+            assert!((y[t] - r[t]).abs() <= 1e-9 * scale, "trial {trial} n_h={n_h} t={t}: {} vs {}", y[t], r[t]);
             assert!(u[t] >= model.grid().lo() && u[t] <= model.grid().hi());
         }
+        // The test must exercise reversals at fractional positions (inside cells).
+        reversals_in_diagonal_cells += u
+            .windows(3)
+            .filter(|w| (w[1] - w[0]) * (w[2] - w[1]) < 0.0 && model.grid().position(w[1]).fract() != 0.0)
+            .count();
     }
-}
-
-#[test]
-fn continuous_inverse_is_optimal_against_a_fine_grid_even_where_the_output_jumps() {
-    // With diagonal masses y_c can jump at a reversal, so some references have no exact
-    // preimage; the inverse must still be at least as good as any input on a fine grid.
-    let mut rng = Rng::new(18);
-    for trial in 0..6 {
-        let n_h = [1usize, 4, 12][trial % 3];
-        let model = random_model(&mut rng, n_h);
-        let tol = invert::tolerance(&model);
-        let r = random_reference(&mut rng, &model, 600);
-        let mut mem = model.interp_memory();
-        let grid: Vec<f64> = (0..=4000).map(|i| n_h as f64 * i as f64 / 4000.0).collect();
-        for (t, &x) in r.iter().enumerate() {
-            let best = grid.iter().map(|&p| (model.peek_position(&mem, p) - x).abs()).fold(f64::INFINITY, f64::min);
-            let (p, _) = invert::continuous_position(&model, &mem, x, tol);
-            let err = (model.peek_position(&mem, p) - x).abs();
-            assert!(err <= best + 1e-9, "trial {trial} t={t}: err {err} > grid best {best}");
-            mem.apply(p, &model.e_interp());
-        }
-    }
+    assert!(reversals_in_diagonal_cells > 1000, "{reversals_in_diagonal_cells}");
 }
 
 #[test]
@@ -222,6 +200,156 @@ fn continuous_inverse_saturates_out_of_range_and_stays_put_on_plateaus() {
     assert!((inv.step(0.0) - 5.0).abs() < 1e-9); // plateau from above: its upper end
     assert_eq!(inv.step(-3.0), 0.0); // below: lo
     assert_eq!(inv.saturated(), 2);
+}
+
+/// The monotone closest match over a whole reference (what the interpolation is built on).
+fn monotone_cm(model: &PreisachModel, r: &[f64]) -> Vec<f64> {
+    let mut cm = vec![0.0; r.len()];
+    invert::monotone_run(model, &mut model.memory(), invert::NO_PREVIOUS_REFERENCE, r, &mut cm);
+    cm
+}
+
+#[test]
+fn monotone_closest_match_is_optimal_among_the_levels_on_the_references_side() {
+    // Oracle: every level tried on a copy of the memory; the allowed levels are those
+    // at or above the current one when the reference rises, at or below when it falls,
+    // only the current one when it is constant.
+    let mut rng = Rng::new(21);
+    let (mut ties_seen, mut sat_seen, mut restricted_seen) = (0, 0u64, 0);
+    for trial in 0..24 {
+        let n_h = [1usize, 2, 3, 5, 8, 13, 30, 60][trial % 8];
+        let model = if trial % 2 == 0 { random_model(&mut rng, n_h) } else { sparse_model(&mut rng, n_h) };
+        let tol = invert::tolerance(&model);
+        let r = random_reference(&mut rng, &model, 1500);
+        let mut mem = model.memory();
+        let mut r_prev = invert::NO_PREVIOUS_REFERENCE;
+        let mut cm = vec![0.0; r.len()];
+        let (n_sat, _) = invert::monotone_run(&model, &mut model.memory(), r_prev, &r, &mut cm);
+        let mut n_sat_oracle = 0u64;
+        for (t, &x) in r.iter().enumerate() {
+            let ys = brute_outputs(&model, &mem);
+            let p = mem.current() as usize;
+            let allowed: Vec<usize> = if x > r_prev {
+                (p..=n_h).collect()
+            } else if x < r_prev {
+                (0..=p).collect()
+            } else {
+                vec![p]
+            };
+            let (k, s) = invert::monotone_level(&model, &mem, x, r_prev, tol);
+            let k = k as usize;
+            assert_eq!(model.grid().level(k), cm[t], "trial {trial} t={t}: run and single step differ");
+            assert!(allowed.contains(&k), "trial {trial} t={t}: level {k} against the reference (from {p})");
+            let err = |j: usize| (ys[j] - x).abs();
+            let e_min = allowed.iter().map(|&j| err(j)).fold(f64::INFINITY, f64::min);
+            assert!(err(k) <= e_min + 2.0 * tol, "trial {trial} t={t}: level {k} err {} > best allowed {e_min}", err(k));
+            for &j in &allowed {
+                if j.abs_diff(p) < k.abs_diff(p) {
+                    assert!(err(j) > e_min + 0.5 * tol, "trial {trial} t={t}: level {j} nearer {p} ties with {k}");
+                }
+            }
+            if allowed.iter().filter(|&&j| err(j) <= e_min + 0.5 * tol).count() > 1 {
+                ties_seen += 1;
+            }
+            // Where the unrestricted optimum lies on the other side, the restriction binds.
+            let e_all = (0..=n_h).map(err).fold(f64::INFINITY, f64::min);
+            if e_all + tol < e_min {
+                restricted_seen += 1;
+            }
+            let (ylo, yhi) = (ys.iter().cloned().fold(f64::INFINITY, f64::min), ys.iter().cloned().fold(f64::NEG_INFINITY, f64::max));
+            if x < ylo - tol || x > yhi + tol {
+                n_sat_oracle += 1;
+                assert!(s);
+            }
+            mem.apply(k as u32, &model.e_step());
+            r_prev = x;
+        }
+        assert_eq!(n_sat, n_sat_oracle, "trial {trial}: saturation count");
+        sat_seen += n_sat;
+    }
+    assert!(sat_seen > 100 && ties_seen > 100 && restricted_seen > 100, "{sat_seen} {ties_seen} {restricted_seen}");
+}
+
+/// References made of monotone segments (alternating direction, 20..400 samples each,
+/// small steps, some repeats, some jumps), beyond the range at times.
+fn segmented_reference(rng: &mut Rng, model: &PreisachModel, n_seg: usize) -> (Vec<f64>, Vec<(usize, usize, f64)>) {
+    let total = model.everett().total();
+    let (ymin, ymax) = (model.offset() - total, model.offset() + total);
+    let span = (ymax - ymin).max(1.0);
+    let (lo, hi) = (ymin - 0.1 * span, ymax + 0.1 * span);
+    let mut r = vec![ymin - 0.2 * span];
+    let mut segs = Vec::new();
+    let mut dir = 1.0;
+    for _ in 0..n_seg {
+        let len = 20 + (rng.uniform() * 380.0) as usize;
+        let slope = rng.range(0.0, 0.01) * span;
+        let a = r.len();
+        let mut x = *r.last().unwrap();
+        // A segment must move: its first step goes strictly in `dir` (away from a bound).
+        x = if dir > 0.0 { x.min(hi - 0.05 * span) } else { x.max(lo + 0.05 * span) };
+        for i in 0..len {
+            let c = rng.uniform();
+            let d = if i == 0 { 0.01 * span + slope } else if c < 0.1 { 0.0 } else if c < 0.13 { 0.2 * span } else { slope * rng.uniform() };
+            x = (x + dir * d).clamp(lo, hi);
+            r.push(x);
+        }
+        // Keep only the part that actually moves monotonically (clamping may flatten it).
+        segs.push((a, r.len() - 1, dir));
+        dir = -dir;
+    }
+    (r, segs)
+}
+
+/// `u` on `[a, end]` never moves against `dir` after it has first moved with it (at most
+/// one turn, carried over from the previous segment's knots, then monotone).
+fn assert_unimodal(u: &[f64], a: usize, end: usize, dir: f64, what: &str) {
+    let mut turned = false;
+    for t in a + 1..=end {
+        let d = (u[t] - u[t - 1]) * dir;
+        if d > 0.0 {
+            turned = true;
+        } else if d < 0.0 {
+            assert!(!turned, "{what}: u moves against the reference at t={t} in [{a}, {end}] ({} -> {})", u[t - 1], u[t]);
+        }
+    }
+}
+
+#[test]
+fn interpolated_inverse_is_monotone_on_monotone_reference_segments() {
+    let mut rng = Rng::new(22);
+    let mut checked = 0usize;
+    for trial in 0..12 {
+        let n_h = [3usize, 10, 30, 80][trial % 4];
+        let model = if trial % 3 == 2 { sparse_model(&mut rng, n_h) } else { random_model(&mut rng, n_h) };
+        let (r, segs) = segmented_reference(&mut rng, &model, 40);
+        let cm = monotone_cm(&model, &r);
+        let (u_off, _) = invert::invert(&model, &r, Method::Interpolated, None).unwrap();
+        for &(a, b, dir) in &segs {
+            // The monotone closest match itself never moves against the reference.
+            for t in a..=b {
+                assert!((cm[t] - cm[t - 1]) * dir >= 0.0, "trial {trial} t={t}: closest match reverses");
+            }
+            // Offline: piecewise linear through knots that are all monotone inside the
+            // segment: monotone from the first knot in it to the last.
+            let knots: Vec<usize> = (a..=b).filter(|&t| cm[t] != cm[t - 1]).collect();
+            if let (Some(&k0), Some(&k1)) = (knots.first(), knots.last()) {
+                for t in k0 + 1..=k1 {
+                    assert!((u_off[t] - u_off[t - 1]) * dir >= 0.0, "trial {trial} offline t={t} in [{k0}, {k1}]");
+                }
+                assert_unimodal(&u_off, a - 1, k1, dir, &format!("trial {trial} offline"));
+                checked += 1;
+            }
+            // Finite look-ahead: the targets inside [a, b − L] are monotone, so the output
+            // turns at most once (finishing the previous segment's ramp) then follows.
+            for l in [0usize, 1, 7, 50] {
+                if b >= a + l {
+                    let (u, _) = invert::invert(&model, &r, Method::Interpolated, Some(l)).unwrap();
+                    assert_unimodal(&u, a - 1, b - l, dir, &format!("trial {trial} L={l}"));
+                }
+            }
+        }
+    }
+    assert!(checked > 300, "{checked}");
 }
 
 #[test]
@@ -259,8 +387,8 @@ fn streaming_interpolation_equals_offline_delayed_by_the_lookahead() {
             let want = if t < l { lo } else { off[t - l] };
             assert_eq!(u.to_bits(), want.to_bits(), "L={l} t={t}");
         }
-        // The offline interpolation starts from the closest match's own values.
-        let (cm, _) = invert::invert(&model, &r, Method::Closest, None).unwrap();
+        // The offline interpolation starts from the monotone closest match's own values.
+        let cm = monotone_cm(&model, &r);
         assert_eq!(off[0], cm[0]);
         assert_eq!(off[r.len() - 1], if cm[r.len() - 1] != cm[r.len() - 2] { 0.5 * (cm[r.len() - 2] + cm[r.len() - 1]) } else { cm[r.len() - 1] });
     }
