@@ -9,7 +9,17 @@ Three methods, all starting from negative saturation (every relay -1, input ``lo
     sample. Ties and plateaus (levels with equal output, from zero masses) go to the
     level nearest the previous input.
 ``"interpolated"``
-    The closest-match signal smoothed as in the paper's Fig. 9: knots at the riser
+    The *monotone* closest match smoothed as in the paper's Fig. 9. The monotone
+    closest match picks, for each sample, the best level among those on the
+    reference's side of the current level: when the reference rises
+    (``r[t] > r[t-1]``) a level at or above the current one, when it falls one at or
+    below, and when it is constant it stays (ties to the level nearest the current
+    one). Why not the per-sample closest match: its optimum dithers (after a one-level
+    rise switches a column of cells, dropping a few levels and coming back gives
+    intermediate outputs), so it keeps reversing against the reference, tracing minor
+    loops, and knots at every riser inherit the dither; the paper's Fig. 9 shows a
+    monotone staircase, which the monotone closest match is. Its signal ``u_cm`` is
+    then interpolated: knots at the riser
     midpoints (a step at sample ``t_s`` from level ``a`` to ``b`` gives the knot
     ``(t_s, (a + b) / 2)``; the first knot is ``(0, u_cm[0])``), linear in between.
     Sample ``t`` moves from ``u[t-1]`` towards the first knot in ``[t, t + L]`` or, if
@@ -25,8 +35,8 @@ Three methods, all starting from negative saturation (every relay -1, input ``lo
     Exact inverse of the interpolated (continuous-output) model: the input nearest the
     previous one with ``y_c(u) = r`` (to ``1e-12`` of the output scale), found by a
     binary search over the levels and regula falsi inside the bracket. Real time, no
-    look-ahead. Where the interpolated output jumps (after a reversal inside a diagonal
-    cell, see ``invert.rs``) the side of the jump nearer the reference is taken.
+    look-ahead. The interpolated output is continuous (diagonal mass lies along the
+    diagonal), so every reachable reference is reproduced to rounding.
 
 References outside the reachable output range ``[offset - total, offset + total]``
 saturate at the end levels (``lo``/``hi``, or the nearest level giving the extreme
@@ -205,9 +215,10 @@ class Inverter:
         """Snapshot: ``memory`` is the memory staircase in level coordinates (0 = lo,
         n_h = hi; dominant extrema then the current input), ``saturated`` the count,
         and for "interpolated" the sample counter ``t``, the last output ``u_prev``,
-        the last closest-match value ``last_cm`` and the knots in the look-ahead window
-        (``knot_t``, ``knot_v``)."""
-        memory, saturated, t, u_prev, last_cm, knot_t, knot_v = self._stream.get_state()
+        the last closest-match value ``last_cm``, the knots in the look-ahead window
+        (``knot_t``, ``knot_v``) and the previous reference ``r_prev`` (the direction
+        of the monotone closest match; ``-inf`` before the first sample)."""
+        memory, saturated, t, u_prev, last_cm, knot_t, knot_v, r_prev = self._stream.get_state()
         return {
             "method": self._method,
             "lookahead": self._lookahead,
@@ -218,13 +229,14 @@ class Inverter:
             "last_cm": float(last_cm),
             "knot_t": knot_t,
             "knot_v": knot_v,
+            "r_prev": float(r_prev),
         }
 
     @state.setter
     def state(self, s: dict[str, Any]) -> None:
         if not isinstance(s, dict):
             raise ValueError(f"state: expected a dict from Inverter.state, got {type(s).__name__}")
-        missing = {"method", "lookahead", "memory", "saturated", "t", "u_prev", "last_cm", "knot_t", "knot_v"} - set(s)
+        missing = {"method", "lookahead", "memory", "saturated", "t", "u_prev", "last_cm", "knot_t", "knot_v", "r_prev"} - set(s)
         if missing:
             raise ValueError(f"state: missing keys {sorted(missing)}")
         if s["method"] != self._method or s["lookahead"] != self._lookahead:
@@ -241,6 +253,7 @@ class Inverter:
             float(s["last_cm"]),
             knot_t.reshape(-1),
             _as_signal("state", s["knot_v"]),
+            float(s["r_prev"]),
         )
 
     def __repr__(self) -> str:

@@ -71,7 +71,7 @@ class InverseStream:
     def lookahead(self) -> int: ...
     def get_state(
         self,
-    ) -> tuple[NDArray[np.float64], int, int, float, float, NDArray[np.uint64], NDArray[np.float64]]: ...
+    ) -> tuple[NDArray[np.float64], int, int, float, float, NDArray[np.uint64], NDArray[np.float64], float]: ...
     def set_state(
         self,
         memory: NDArray[np.float64],
@@ -81,6 +81,7 @@ class InverseStream:
         last_cm: float,
         knot_t: NDArray[np.uint64],
         knot_v: NDArray[np.float64],
+        r_prev: float,
     ) -> None: ...
 
 # --- simulator ---

@@ -35,7 +35,8 @@ pub struct InverseStream {
     inner: Inverter,
 }
 
-type StateTuple<'py> = (Bound<'py, PyArray1<f64>>, u64, u64, f64, f64, Bound<'py, PyArray1<u64>>, Bound<'py, PyArray1<f64>>);
+type StateTuple<'py> =
+    (Bound<'py, PyArray1<f64>>, u64, u64, f64, f64, Bound<'py, PyArray1<u64>>, Bound<'py, PyArray1<f64>>, f64);
 
 #[pymethods]
 impl InverseStream {
@@ -83,11 +84,11 @@ impl InverseStream {
         self.inner.lookahead()
     }
 
-    /// (memory, saturated, t, u_prev, last_cm, knot_t, knot_v)
+    /// (memory, saturated, t, u_prev, last_cm, knot_t, knot_v, r_prev)
     fn get_state<'py>(&self, py: Python<'py>) -> StateTuple<'py> {
         let s = self.inner.state();
         let (kt, kv): (Vec<u64>, Vec<f64>) = s.knots.iter().copied().unzip();
-        (s.memory.into_pyarray(py), s.saturated, s.t, s.u_prev, s.last_cm, kt.into_pyarray(py), kv.into_pyarray(py))
+        (s.memory.into_pyarray(py), s.saturated, s.t, s.u_prev, s.last_cm, kt.into_pyarray(py), kv.into_pyarray(py), s.r_prev)
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -100,6 +101,7 @@ impl InverseStream {
         last_cm: f64,
         knot_t: PyReadonlyArray1<'_, u64>,
         knot_v: PyReadonlyArray1<'_, f64>,
+        r_prev: f64,
     ) -> PyResult<()> {
         guard(|| {
             let kt = knot_t.as_slice().map_err(|_| PyValueError::new_err("state: knot times must be contiguous"))?;
@@ -114,6 +116,7 @@ impl InverseStream {
                 u_prev,
                 last_cm,
                 knots: kt.iter().copied().zip(kv.iter().copied()).collect(),
+                r_prev,
             };
             self.inner.set_state(&s).map_err(to_py)
         })
