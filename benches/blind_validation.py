@@ -114,9 +114,12 @@ def waveform(kind: str, fs: float, dur: float, rng: np.random.Generator) -> np.n
         # Decaying multi-tone: many nested reversals, several rates, plus a few steps.
         # Two decaying bursts: large loops early and late, so a slow drift in time is not
         # confounded with the input level.
-        env = 0.15 + 0.85 * np.exp(-(t % (dur / 2)) / (dur / 6))
+        # The first 7 Hz cycle of each burst keeps the full amplitude, and 63 Hz = 9 x 7 Hz
+        # puts the top of the sweep at the top of the range: the training record covers
+        # the holdouts' input range (otherwise the gap is extrapolation, not an effect).
+        env = 0.15 + 0.85 * np.exp(-np.maximum(0.0, (t % (dur / 2)) - 1 / 7) / (dur / 6))
         # Starts at rest at the bottom; the first cycles span the whole range.
-        s = 0.8 * np.cos(2 * np.pi * 7 * t) + 0.2 * np.cos(2 * np.pi * 61 * t)
+        s = 0.8 * np.cos(2 * np.pi * 7 * t) + 0.2 * np.cos(2 * np.pi * 63 * t)
         u = mid - amp * env * s
         steps = np.zeros_like(t)
         for k, tk in enumerate(np.arange(0.6, dur, dur / 5)):

@@ -85,9 +85,7 @@ def test_delay_found_with_parameters_and_cli_outputs(delay_stage, tmp_path):
 
 
 @pytest.mark.parametrize("names,seed", [
-    ((), 21), (("vibration",), 22), (("lowpass",), 24),
-    # Known gap: drift fitted on the training record alone is absorbed by the masses.
-    pytest.param(("drift",), 23, marks=pytest.mark.xfail(reason="drift not yet identified from the training record", strict=False)),
+    ((), 21), (("vibration",), 22), (("lowpass",), 24), (("drift",), 23), (("creep",), 25),
 ])
 def test_small_blind_validation(names, seed):
     """Key goals on a few fixed-seed stages: right top-1, no false alarm, mode within 3 %,

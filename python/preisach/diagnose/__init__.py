@@ -155,7 +155,12 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
     # Reference: the same model class with a continuous (interpolated) output, refitted.
     stride = max(1, int(round(1.0 / (tr.dt * fit_rate_hz))))
     fit_rec = tr.decimated(stride)
-    fitter = ChainFitter(fit_rec, n_h, base_model.u_range)
+    # Augmented chains use a model range a little wider than the training input (5 % of
+    # its span each side): no sample saturates the model, which otherwise biases the
+    # effect parameters (creep most) that compensate the flat output beyond the range.
+    u_lo, u_hi = float(np.min(tr.u)), float(np.max(tr.u))
+    pad = 0.05 * (u_hi - u_lo)
+    fitter = ChainFitter(fit_rec, n_h, (u_lo - pad, u_hi + pad))
     ref = fitter.fit(base_effects, None, iters=2 if base_effects else 0)
     ref_score = score(ref)
     _say(progress, f"reference (interpolated) holdout RMSE {ref_score:.4g} (baseline {hold_before:.4g})")
@@ -184,7 +189,7 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
             if c in accepted:
                 continue
             t0 = time.perf_counter()
-            st = fitter.fit(cur.effects, c, iters=2, start=cur.model)
+            st = fitter.fit(cur.effects, c, iters=2, start=cur.model, only_new=True)
             sc = score(st)
             results[c] = (st, sc)
             _say(progress, f"round {rnd + 1}: + {c:10s} holdout RMSE {sc:.4g} ({time.perf_counter() - t0:.1f} s)")
@@ -199,22 +204,24 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
             break
         accepted.append(best)
         cur, cur_score = results[best]
-        # Polish the accepted chain (profile every kept effect with the masses refitted)
-        # so the next round credits a new effect only with its own improvement, not with
-        # further convergence of the effects already kept.
-        eff, model = dict(cur.effects), cur.model
-        for c in accepted:
-            eff, model = fitter.profile(c, eff, model)
-        pol = FitState(model, eff)
-        ps = score(pol)
-        if ps < cur_score:
-            cur, cur_score = pol, ps
+        # Polish the accepted chain (all kept effects refitted jointly with the masses, then
+        # each effect's main scalar profiled) so the next round credits a new effect only
+        # with its own improvement, not with further convergence of the effects kept.
+        if len(accepted) > 1:
+            pol = fitter.fit(cur.effects, None, iters=2, start=cur.model)
+            eff, model = dict(pol.effects), pol.model
+            for c in accepted:
+                eff, model = fitter.profile(c, eff, model)
+            pol = FitState(model, eff)
+            ps = score(pol)
+            if ps < cur_score:
+                cur, cur_score = pol, ps
     # Discretization: a finer grid (with the effects found).
     if "discretization" in candidates:
         nh2 = min(2 * n_h, max(n_h, _reversals(tr.u) // 2), 120)
         if nh2 > n_h:
             t0 = time.perf_counter()
-            st = fitter.fit(cur.effects, None, iters=1 if cur.effects else 0, n_h=nh2)
+            st = FitState(fitter.masses(cur.effects, cur.model, n_h=nh2), dict(cur.effects))
             sc = score(st)
             _say(progress, f"+ discretization (n_h={nh2}) holdout RMSE {sc:.4g} ({time.perf_counter() - t0:.1f} s)")
             g = (cur_score - sc) / cur_score if cur_score > 0 else 0.0

@@ -19,7 +19,7 @@ from typing import Any, Callable, Optional
 import numpy as np
 from numpy.typing import NDArray
 
-from preisach.chain import ORDER, apply_effects, apply_linear, delay_signal, rate_term
+from preisach.chain import ORDER, apply_effects, apply_linear, delay_signal, lti, rate_term
 from preisach.model import PreisachModel
 
 #: Candidate effects the diagnoser tries (``discretization`` is handled separately).
@@ -79,12 +79,86 @@ def _rows(u: NDArray[np.float64], cap: int) -> NDArray[np.intp]:
 
 
 def fit_masses(u: NDArray[np.float64], y: NDArray[np.float64], n_h: int, u_range: tuple[float, float],
-               cap: int = 12000) -> PreisachModel:
-    """Interpolated model fitted on a subset of rows (see :func:`_rows`)."""
-    idx = _rows(u, cap)
+               cap: Optional[int] = None) -> PreisachModel:
+    """Interpolated model fitted on all samples (the core merges interpolated rows
+    exactly, so this costs about as much as the stepwise fit); ``cap`` subsamples to
+    about that many rows (see :func:`_rows`)."""
+    idx = _rows(u, cap) if cap else slice(None)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return PreisachModel.fit(u[idx], y[idx], n_h, u_range=u_range, output="interpolated", solver="structured")
+
+
+class RowLS:
+    """Unconstrained least squares of the interpolated masses (plus extra per-sample
+    columns) on a fixed input ``u``, through the core's merged regression rows.
+
+    The merged rows depend on ``u`` only; their targets are linear in the output and the
+    within-row sum of squares is a quadratic form, so ``y ~ A w + theta s`` is solved
+    exactly from three row projections (``y``, ``s``, ``y + s``) and one cached Cholesky
+    factor. Used to profile an effect parameter with the masses refitted at every trial
+    value at millisecond cost (no non-negativity: a ranking device, the final masses come
+    from the exact NNLS fit)."""
+
+    def __init__(self, u: NDArray[np.float64], n_h: int, u_range: tuple[float, float]) -> None:
+        from preisach import _preisach
+
+        self._rr = _preisach.regression_rows
+        self.u = np.ascontiguousarray(u, dtype=np.float64)
+        self.n_h = n_h
+        self.u_range = (float(u_range[0]), float(u_range[1]))
+        A, cnt, _, _ = self._rr(self.u, np.zeros_like(self.u), n_h, self.u_range, True)
+        self.A = A
+        self.cnt = cnt
+        G = (A.T * cnt) @ A
+        ridge = 1e-9 * float(np.max(np.diag(G))) + 1e-300
+        self.Gi = np.linalg.inv(G + ridge * np.eye(G.shape[0]))
+
+    def _proj(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Row targets of ``v``; the within-row sum of squares of ``v`` is
+        ``v.v - sum(cnt b^2)`` (the pseudo-rows are an orthogonal projection), so cross
+        terms need no further call."""
+        return self._rr(self.u, np.ascontiguousarray(v, dtype=np.float64), self.n_h, self.u_range, True)[2]
+
+    def _resid(self, b: NDArray[np.float64]) -> NDArray[np.float64]:
+        return b - self.A @ (self.Gi @ (self.A.T @ (self.cnt * b)))
+
+    def fit1(self, y: NDArray[np.float64], s: NDArray[np.float64],
+             by: Optional[NDArray[np.float64]] = None) -> tuple[float, float]:
+        """min over (w, theta) of the mean squared error of ``y - A w - theta s``;
+        returns (theta, mse)."""
+        by = self._proj(y) if by is None else by
+        bs = self._proj(s)
+        c = self.cnt
+        qyy = float(y @ y - np.sum(c * by * by))
+        qss = float(s @ s - np.sum(c * bs * bs))
+        qys = float(y @ s - np.sum(c * by * bs))
+        ey, es = self._resid(by), self._resid(bs)
+        num = float(np.sum(c * ey * es)) + qys
+        den = float(np.sum(c * es * es)) + qss
+        th = num / den if den > 0 else 0.0
+        obj = float(np.sum(c * (ey - th * es) ** 2)) + qyy - 2 * th * qys + th * th * qss
+        return th, obj / self.u.size
+
+    def fit0(self, y: NDArray[np.float64]) -> float:
+        """Mean squared error of the masses alone."""
+        by = self._proj(y)
+        return (float(np.sum(self.cnt * self._resid(by) ** 2)) + float(y @ y - np.sum(self.cnt * by * by))) / self.u.size
+
+
+def creep_inverse(y: NDArray[np.float64], tau: float, c: float, dt: float) -> NDArray[np.float64]:
+    """Undo the DC-normalized single creep element ``G = 1 - c s tau / (1 + s tau)``:
+    ``G^-1 = (1 + s tau) / (1 + s tau (1 - c))``, i.e.
+    ``x = (y - c LP_{tau (1 - c)}[y]) / (1 - c)`` (stable, first order)."""
+    if c == 0:
+        return y
+    tp = tau * (1 - c)
+    return (y - c * _lp(y, tp, dt)) / (1 - c)
+
+
+def _lp(x: NDArray[np.float64], tau: float, dt: float) -> NDArray[np.float64]:
+    """First-order low-pass 1 / (1 + s tau), DC gain 1, starting at rest."""
+    return lti(x, dt, [complex(-1 / tau)], [complex(1 / tau)])
 
 
 def _golden(f: Callable[[float], float], lo: float, hi: float, iters: int = 18) -> tuple[float, float]:
@@ -162,11 +236,13 @@ def _mode_guess(r: NDArray[np.float64], dt: float) -> list[float]:
 class ChainFitter:
     """Fits chains on one (possibly decimated) training record."""
 
-    def __init__(self, rec: Record, n_h: int, u_range: tuple[float, float], cap: int = 3500) -> None:
+    def __init__(self, rec: Record, n_h: int, u_range: tuple[float, float], cap: Optional[int] = None) -> None:
         self.rec = rec
         self.n_h = n_h
         self.u_range = u_range
         self.cap = cap
+        self._rowls: dict[float, RowLS] = {}
+        self.last_gain = 0.0
 
     # -- masses given effects ------------------------------------------------------
     def masses(self, effects: dict[str, dict[str, Any]], prev: Optional[PreisachModel], n_h: Optional[int] = None) -> PreisachModel:
@@ -177,6 +253,20 @@ class ChainFitter:
             p = effects["drift"]
             z = (z - p["offset"] - p["offset_per_s"] * r.t) / (1 + p["gain_per_s"] * r.t)
         ud = delay_signal(r.u, effects["delay"]["delay_s"], r.dt) if "delay" in effects else r.u
+        cr = effects.get("creep")
+        single = cr is not None and cr.get("_norm") and len(cr["taus_s"]) == 1
+        if single:
+            # Exact: the blocks behind creep are corrected with the previous masses, creep
+            # itself is inverted (a stable first-order lead-lag), the rate branch subtracted.
+            post = {k: v for k, v in effects.items() if k in ("vibration", "lowpass")}
+            if post and prev is not None:
+                x = apply_effects({k: v for k, v in effects.items() if k in ("rate", "creep")}, r.t, ud,
+                                  prev.predict(ud), r.dt)
+                z = z - (apply_effects(post, r.t, ud, x, r.dt) - x)
+            z = creep_inverse(z, cr["taus_s"][0], cr["amplitudes"][0], r.dt)
+            if "rate" in effects:
+                z = z - rate_term(effects["rate"], ud, r.dt)
+            return fit_masses(ud, z, nh, self.u_range, self.cap)
         lin = {k: v for k, v in effects.items() if k in ("rate", "creep", "vibration", "lowpass")}
         if lin and prev is not None:
             h = prev.predict(ud)
@@ -184,6 +274,84 @@ class ChainFitter:
         elif "rate" in lin:
             z = z - rate_term(lin["rate"], ud, r.dt)
         return fit_masses(ud, z, nh, self.u_range, self.cap)
+
+    def rowls(self, delay_s: float) -> "RowLS":
+        """The (cached) row least-squares helper on the (delayed) training input."""
+        key = round(delay_s / self.rec.dt, 3)
+        if key not in self._rowls:
+            r = self.rec
+            ud = delay_signal(r.u, delay_s, r.dt) if delay_s > 0 else r.u
+            self._rowls.clear()
+            self._rowls[key] = RowLS(ud, self.n_h, self.u_range)
+        return self._rowls[key]
+
+    def drift_search(self, effects: dict[str, dict[str, Any]], h: NDArray[np.float64]) -> dict[str, Any]:
+        """Drift by profiling its gain with the masses refitted exactly (row least squares)
+        at every trial: ``y / (1 + g t) = x + o'' t / (1 + g t) + const`` is linear in the
+        masses and the offset slope for fixed ``g``; the offsets follow by least squares."""
+        r = self.rec
+        others = {k: v for k, v in effects.items() if k != "drift"}
+        pre = apply_effects(others, r.t, r.u, h, r.dt)
+        d = others.get("delay", {}).get("delay_s", 0.0)
+        hd = delay_signal(h, d, r.dt)
+        y = r.y - (pre - hd)  # the other blocks removed (to first order in the gain)
+        R = self.rowls(d)
+        cache: dict[float, float] = {}
+
+        def f(g: float) -> float:
+            q = 1 + g * r.t
+            th, ob = R.fit1(y / q, r.t / q)
+            cache[g] = th
+            return ob * float(np.mean(q * q))
+
+        gmax = 0.5 / max(float(r.t[-1]), 1e-9)
+        g, _ = _grid_then_golden(f, np.linspace(-min(0.1, gmax), min(0.1, gmax), 7), iters=6)
+        if g not in cache:
+            f(g)
+        # y = (1 + g t) (x + c) + o'' t: the constant c stays in the masses' offset (inside
+        # the gain), so the drift block's own offset is 0 and its slope is o''.
+        return {"gain_per_s": float(g), "offset": 0.0, "offset_per_s": float(cache[g])}
+
+    def creep_search(self, effects: dict[str, dict[str, Any]], h: NDArray[np.float64]) -> tuple[dict[str, Any], float, float]:
+        """Creep by profiling its time constant with the masses refitted exactly (row
+        least squares) at every trial: with ``y_c`` the output with the other blocks
+        removed, ``y_c - c LP_{tau'}[y_c] = (1 - c) x`` (``x`` the hysteresis output,
+        ``tau' = tau (1 - c)``) is linear in ``c`` and the masses for fixed ``tau'``.
+        Returns (params, mse with creep, mse without)."""
+        r = self.rec
+        others = {k: v for k, v in effects.items() if k != "creep"}
+        y = r.y
+        if "drift" in others:
+            p = others["drift"]
+            y = (y - p["offset"] - p["offset_per_s"] * r.t) / (1 + p["gain_per_s"] * r.t)
+        pre = {k: v for k, v in effects.items() if k in ("rate", "creep")}
+        x = apply_effects(pre, r.t, r.u, h, r.dt)
+        post = {k: v for k, v in others.items() if k in ("vibration", "lowpass", "delay")}
+        d = others.get("delay", {}).get("delay_s", 0.0)
+        if post:
+            y = y - (apply_effects(post, r.t, r.u, x, r.dt) - delay_signal(x, d, r.dt))
+        if "rate" in others:
+            y = y - delay_signal(rate_term(others["rate"], r.u, r.dt), d, r.dt)
+        R = self.rowls(d)
+        by = R._proj(y)
+        e0 = R.fit0(y)
+        T = r.t[-1] - r.t[0]
+        cache: dict[float, tuple[float, float]] = {}
+
+        def f(lt: float) -> float:
+            th, ob = R.fit1(y, _lp(y, math.exp(lt), r.dt), by)
+            if not (0 < th < 0.9):
+                ob = e0
+            cache[lt] = (th, ob)
+            return ob
+
+        grid = np.linspace(math.log(2e-3), math.log(max(0.02, 3 * T)), 8)
+        lt, ob = _grid_then_golden(f, grid, iters=6)
+        th = cache[lt][0] if lt in cache else 0.0
+        if ob >= e0 or not (0 < th < 0.9):
+            return {"taus_s": [float(math.exp(lt))], "amplitudes": [0.0], "_norm": True}, e0, e0
+        tau = math.exp(lt) / (1 - th)
+        return {"taus_s": [float(tau)], "amplitudes": [float(th)], "_norm": True}, ob, e0
 
     # -- effect parameters given masses -------------------------------------------
     def params(self, name: str, effects: dict[str, dict[str, Any]], h: NDArray[np.float64]) -> dict[str, Any]:
@@ -231,41 +399,11 @@ class ChainFitter:
                 span = 0.02
             return {"frequency_hz": float(f0), "damping": float(zeta)}
         if name == "creep":
-            # Kelvin-Voigt elements on a fixed log grid of time constants; the gains
-            # enter linearly (non-negative least squares).
-            T = r.t[-1] - r.t[0]
-            taus = [x for x in (0.003, 0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0) if x <= max(0.01, 2 * T)]
-            pre = {k: v for k, v in others.items() if k in ("rate",)}
-            x = apply_effects(pre, r.t, r.u, h, r.dt)
-            post = {k: v for k, v in others.items() if k in ("vibration", "lowpass", "delay")}
-
-            def down(s: NDArray[np.float64]) -> NDArray[np.float64]:
-                for k in ("vibration", "lowpass", "delay"):
-                    if k in post:
-                        s = apply_linear(k, post[k], s, r.dt)
-                return s
-
-            cols = [down(apply_linear("creep", {"taus_s": [tau], "amplitudes": [1.0], "_norm": True}, x, r.dt) - x)
-                    for tau in taus]
-            base = down(x)
-            A = np.stack(cols, axis=1)
-            target = r.y
-            if "drift" in others:
-                p = others["drift"]
-                target = (r.y - p["offset"] - p["offset_per_s"] * r.t) / (1 + p["gain_per_s"] * r.t)
-            b = target - base
-            # Free offset column: the masses' offset is not refitted here.
-            A1 = np.concatenate([A, np.ones((A.shape[0], 1))], axis=1)
-            sol, *_ = np.linalg.lstsq(A1, b, rcond=None)
-            amps = _nnls_small(A, b - sol[-1])
-            keep = [i for i in range(len(taus)) if amps[i] > 1e-4]
-            return {"taus_s": [float(taus[i]) for i in keep] or [taus[0]],
-                    "amplitudes": [float(amps[i]) for i in keep] or [0.0], "_norm": True}
+            pc, ob, e0 = self.creep_search(effects, h)
+            self.last_gain = 1 - ob / e0 if e0 > 0 else 0.0
+            return pc
         if name == "drift":
-            pre = apply_effects(others, r.t, r.u, h, r.dt)
-            A = np.stack([r.t * pre, np.ones_like(pre), r.t], axis=1)
-            sol, *_ = np.linalg.lstsq(A, r.y - pre, rcond=None)
-            return {"gain_per_s": float(sol[0]), "offset": float(sol[1]), "offset_per_s": float(sol[2])}
+            return self.drift_search(effects, h)
         if name == "rate":
             best = None
             for tau in (1e-4, 3e-4, 1e-3, 3e-3, 1e-2):
@@ -294,10 +432,8 @@ class ChainFitter:
         elif name == "lowpass":
             c = math.log(p0["cutoff_hz"])
             lo, hi, setp = c - math.log(3.0), c + math.log(1.5), lambda p, x: dict(p, cutoff_hz=math.exp(x))
-        elif name == "creep":
-            lo, hi = 0.7, 1.8
-            setp = lambda p, x: dict(p, amplitudes=[a * x for a in p0["amplitudes"]])  # noqa: E731
-        else:
+        else:  # creep: its search refits the masses exactly already
+
             return eff, model
         cache: dict[float, tuple[float, PreisachModel]] = {}
 
@@ -316,13 +452,19 @@ class ChainFitter:
 
     # -- the alternation -----------------------------------------------------------
     def fit(self, effects: dict[str, dict[str, Any]], new: Optional[str] = None, iters: int = 4,
-            start: Optional[PreisachModel] = None, n_h: Optional[int] = None) -> FitState:
+            start: Optional[PreisachModel] = None, n_h: Optional[int] = None, only_new: bool = False) -> FitState:
         """Fit masses and all effect parameters jointly. ``effects`` holds the current
-        parameters; ``new`` names an effect to add (initialised from the data)."""
+        parameters; ``new`` names an effect to add (initialised from the data);
+        ``only_new`` keeps the other effects' parameters (a candidate is then credited
+        only with its own improvement, and the fit is cheaper)."""
         r = self.rec
         eff = {k: dict(v) for k, v in effects.items()}
         model = start if start is not None else self.masses(eff, None, n_h)
         names = [k for k in ORDER if k in eff or k == new]
+        if only_new and new is not None:
+            names = [new]
+            if new in ("creep", "drift"):
+                iters = 1  # their searches refit the masses exactly already
         e0 = None
         for it in range(iters):
             h = model.predict(r.u)
@@ -337,6 +479,8 @@ class ChainFitter:
                 e1 = float(np.mean((apply_effects(eff, r.t, r.u, h, r.dt) - r.y) ** 2))
                 if e1 > 0.98 * e0:
                     break
+            if it == 0 and new == "creep" and self.last_gain < 0.02:
+                break  # the exact profile (masses refitted) found no creep
             model = self.masses(eff, model, n_h)
             if new is not None and it == 0 and new in eff:
                 eff, model = self.profile(new, eff, model)
