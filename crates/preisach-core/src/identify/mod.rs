@@ -11,6 +11,9 @@ use crate::model::PreisachModel;
 pub use qp::{dense_bytes, Problem, Solution};
 pub use rows::{build_rows, Rows};
 
+/// Largest n_h the structured solver accepts (its sparse factor grows like n_q^1.5).
+pub const MAX_N_H_STRUCTURED: usize = 600;
+
 /// Which exact solver to use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Solver {
@@ -152,6 +155,15 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
     };
     let grid = Grid::new(lo, hi, opts.n_h)?;
     let n_h = grid.n_h();
+    // Both solvers' memory grows faster than n_q (the sparse interior point's factor like
+    // n_q^1.5: n_h = 100 fits in under a second, n_h = 1000 took over 1.4 GB and many
+    // minutes): refuse before allocating rather than exhaust the machine.
+    if n_h > MAX_N_H_STRUCTURED {
+        return Err(PreisachError::invalid(
+            "n_h",
+            format!("{n_h} is too large to identify in memory (identification handles n_h <= {MAX_N_H_STRUCTURED})"),
+        ));
+    }
     let (u_min, u_max) = min_max(u);
 
     let q: Vec<u32> = u.iter().map(|&x| grid.quantize(x)).collect();
