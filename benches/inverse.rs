@@ -5,6 +5,9 @@
 //! range (the paper's compensation test), `jumps` = uniform random levels every sample
 //! (the worst case for the galloping search: O(log n_h) peeks per sample).
 //! Criterion reports time per 100 000-sample run; ns/sample = that / 1e5.
+//! `interpolated_L100` runs the monotone closest match (the interpolation's knot source,
+//! which skips the search whenever the reference moves back towards the current level)
+//! plus the interpolation with a 100-sample look-ahead.
 //!
 //! `cargo bench --bench inverse` (set `INVERSE_NH=10,100` to choose the n_h).
 
