@@ -40,6 +40,9 @@ pub(crate) fn slice<'a>(name: &str, a: &'a PyReadonlyArray1<'_, f64>) -> PyResul
     a.as_slice().map_err(|_| PyValueError::new_err(format!("{name}: array must be C-contiguous float64")))
 }
 
+/// Two float64 arrays (output and final state).
+type ArrayPair<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
+
 /// The compiled model: grid, masses, offset, Everett table.
 #[pyclass(frozen, module = "preisach._preisach")]
 pub struct Model {
@@ -104,7 +107,7 @@ impl Model {
         u: PyReadonlyArray1<'py, f64>,
         state: PyReadonlyArray1<'py, f64>,
         interpolated: bool,
-    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
+    ) -> PyResult<ArrayPair<'py>> {
         guard(|| {
             let u = slice("u", &u)?;
             let state = slice("state", &state)?;
