@@ -19,6 +19,14 @@ sensor         1/5 V/µm, 4th-order Butterworth anti-aliasing at 20 kHz, optiona
 
 The output ``y`` is the sensor voltage (0.2 V per µm).
 
+A record starts at rest: blocks start in equilibrium with the first sample. After
+construction, :meth:`Stage.reset` and :meth:`Stage.reset_state`, every stateful linear
+block (low-pass filters, vibration modes, creep elements, delay line, the amplifier's
+slew limiter) sets its state to the steady state for the first input, so a constant
+input gives a constant output from the first sample (no ringing of the 780 Hz mode at
+the start of a run). The hysteresis memory starts with all relays down, then the first
+input; drift and noise are unaffected.
+
 :func:`run_loop` drives a stage with a compensator built from a
 :class:`~preisach.PreisachModel` (the streaming inverse) and times every sample
 against the sample period (10 µs at 100 kHz).
@@ -159,11 +167,13 @@ class Stage:
         return float(self._core.step(float(u)))
 
     def reset(self) -> None:
-        """Back to rest, time 0, noise streams from their seeds: a replay is identical."""
+        """Back to rest, time 0, noise streams from their seeds: a replay is identical.
+        The next sample finds every block in equilibrium with it."""
         self._core.reset()
 
     def reset_state(self) -> None:
-        """Back to rest for a new record; absolute time and noise streams run on."""
+        """Back to rest for a new record (every block in equilibrium with the next
+        sample); absolute time and noise streams run on."""
         self._core.reset_state()
 
     def copy(self) -> "Stage":

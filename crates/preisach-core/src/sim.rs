@@ -102,7 +102,9 @@ pub struct LoopResult {
 /// compensator and I/O only). Output buffers are allocated before the loop; the loop itself does
 /// not allocate.
 ///
-/// Both the compensator and the chain are reset first (replay from rest, time 0).
+/// Both the compensator and the chain are reset first (replay from rest, time 0; the
+/// chain starts in equilibrium with the first compensator output, so no start-up
+/// transient rings through the stage).
 pub fn run_loop<C: Compensator + ?Sized>(comp: &mut C, plant: &mut Chain, reference: &[f64]) -> Result<LoopResult> {
     run_loop_preview(comp, plant, reference, 0)
 }

@@ -1,5 +1,8 @@
 //! Plant blocks and the sample loop: each block against an analytic formula, the
 //! chain's JSON and determinism, and every bad parameter rejected by name.
+//!
+//! Blocks start in equilibrium with their first sample, so the analytic step
+//! responses feed one sample of 0 (rest at 0) and step to 1 from the second sample.
 
 use std::f64::consts::{PI, TAU};
 use std::sync::Arc;
@@ -35,6 +38,7 @@ fn amplitude_at(x: &[f64], f: f64, fs: f64) -> f64 {
 fn zoh_mode_matches_the_analytic_step_response() {
     for &(f, z) in &[(780.0, 0.02), (780.0, 0.3), (5000.0, 0.05)] {
         let mut v = Vibration::new(VibrationParams { modes: vec![Mode { freq_hz: f, damping: z }] }, FS).unwrap();
+        assert_eq!(v.step(0.0), 0.0, "at rest at 0");
         let w = TAU * f;
         let wd = w * (1.0 - z * z).sqrt();
         for n in 0..5000 {
@@ -53,7 +57,7 @@ fn modes_in_series_keep_unit_dc_gain() {
         modes: vec![Mode { freq_hz: 780.0, damping: 0.2 }, Mode { freq_hz: 2300.0, damping: 0.1 }],
     };
     let mut v = Vibration::new(p, FS).unwrap();
-    let mut y = 0.0;
+    let mut y = v.step(0.0); // at rest at 0, then a step
     for _ in 0..100_000 {
         y = v.step(2.5);
     }
@@ -67,7 +71,8 @@ fn butterworth_dc_gain_one_and_minus_3_db_at_cutoff() {
     for order in 1..=4 {
         for &fc in &[500.0, 10_000.0, 30_000.0] {
             let mut lp = Lowpass::new(LowpassParams { cutoff_hz: fc, order }, FS).unwrap();
-            let mut y = 0.0;
+            let mut y = lp.step(0.0); // at rest at 0, then a unit step
+            assert_eq!(y, 0.0);
             for _ in 0..20_000 {
                 y = lp.step(1.0);
             }
@@ -110,7 +115,8 @@ fn delay_is_exact_on_integer_samples() {
         let mut del = Delay::new(DelayParams { delay_s: d as f64 / FS }, FS).unwrap();
         for (k, &v) in x.iter().enumerate() {
             let y = del.step(v);
-            let exact = if k >= d { x[k - d] } else { 0.0 };
+            // At rest before the first sample: the line holds x[0].
+            let exact = if k >= d { x[k - d] } else { x[0] };
             assert_eq!(y, exact, "d={d} k={k}");
         }
     }
@@ -142,7 +148,8 @@ fn paper_delay_is_45_8_samples() {
 fn creep_follows_the_kelvin_voigt_step_response_and_dc_gain() {
     let p = CreepParams { gains: vec![0.02, 0.05], time_constants_s: vec![0.01, 0.1] };
     let mut c = Creep::new(p, FS).unwrap();
-    let mut y = 0.0;
+    let mut y = c.step(0.0); // at rest at 0, then a unit step
+    assert_eq!(y, 0.0);
     for n in 0..200_000 {
         y = c.step(1.0);
         if n % 997 == 0 {
@@ -158,6 +165,7 @@ fn creep_follows_the_kelvin_voigt_step_response_and_dc_gain() {
 #[test]
 fn creep_log_law_grows_about_gamma_per_decade() {
     let mut c = Creep::new(CreepParams::log_law(0.01, 0.01, 100.0), 1000.0).unwrap();
+    c.step(0.0); // at rest at 0, then a unit step
     let y: Vec<f64> = (0..100_000).map(|_| c.step(1.0)).collect(); // 100 s at 1 kHz
     // Between 0.1 s and 10 s (inside the τ span) the growth is ~2 decades · 1 %.
     let g = y[9_999] - y[99];
@@ -193,6 +201,7 @@ fn drift_follows_its_formula_in_absolute_time() {
 fn amplifier_gain_saturation_and_slew() {
     let p = AmplifierParams { gain: 20.0, saturation: Some([-30.0, 150.0]), slew_v_per_s: Some(1e6) };
     let mut a = Amplifier::new(p, FS).unwrap();
+    assert_eq!(a.step(0.0), 0.0); // at rest at 0, then a step
     // 1e6 V/s at 100 kHz = 10 V per sample.
     let ys: Vec<f64> = (0..20).map(|_| a.step(10.0)).collect();
     for (k, y) in ys.iter().enumerate() {
@@ -200,6 +209,14 @@ fn amplifier_gain_saturation_and_slew() {
     }
     let mut a = Amplifier::new(AmplifierParams::default(), FS).unwrap();
     assert_eq!(a.step(0.37), 20.0 * 0.37);
+    // The slew limiter starts at the first (saturated) value: no ramp up from 0 V.
+    let p = AmplifierParams { gain: 20.0, saturation: Some([-30.0, 150.0]), slew_v_per_s: Some(1e6) };
+    let mut a = Amplifier::new(p, FS).unwrap();
+    assert_eq!(a.step(10.0), 150.0);
+    assert_eq!(a.step(10.0), 150.0);
+    a.reset();
+    assert_eq!(a.step(2.0), 40.0);
+    assert_eq!(a.step(-10.0), 30.0);
 }
 
 #[test]
@@ -480,4 +497,131 @@ fn timing_statistics() {
     assert_eq!(t.p99_ns, 990.0);
     assert_eq!(t.max_ns, 1000.0);
     assert_eq!(t.misses, 10);
+}
+
+// ------------------------------------------------------------------ rest at the first sample
+
+/// Largest deviation of `y` from its first value.
+fn ripple(y: &[f64]) -> f64 {
+    y.iter().map(|v| (v - y[0]).abs()).fold(0.0, f64::max)
+}
+
+fn constant_response(b: &mut Block, x0: f64, n: usize) -> Vec<f64> {
+    (0..n).map(|_| b.step(x0)).collect()
+}
+
+#[test]
+fn every_lti_block_starts_in_equilibrium_with_its_first_sample() {
+    let specs = vec![
+        BlockSpec::Lowpass(LowpassParams { cutoff_hz: 20_000.0, order: 1 }),
+        BlockSpec::Lowpass(LowpassParams { cutoff_hz: 20_000.0, order: 2 }),
+        BlockSpec::Lowpass(LowpassParams { cutoff_hz: 500.0, order: 3 }),
+        BlockSpec::Lowpass(LowpassParams { cutoff_hz: 20_000.0, order: 4 }),
+        BlockSpec::Vibration(VibrationParams { modes: vec![Mode { freq_hz: 780.0, damping: 0.02 }] }),
+        BlockSpec::Vibration(VibrationParams {
+            modes: vec![Mode { freq_hz: 780.0, damping: 0.005 }, Mode { freq_hz: 2300.0, damping: 0.1 }],
+        }),
+        BlockSpec::Creep(CreepParams::log_law(0.01, 0.1, 100.0)),
+        BlockSpec::Creep(CreepParams { gains: vec![0.02, 0.05], time_constants_s: vec![0.01, 0.1] }),
+        BlockSpec::Delay(DelayParams { delay_s: 4.58e-4 }),
+        BlockSpec::Delay(DelayParams { delay_s: 3.0 / FS }),
+        BlockSpec::Amplifier(AmplifierParams { gain: 20.0, saturation: Some([-30.0, 180.0]), slew_v_per_s: Some(1e5) }),
+        BlockSpec::Sensor(SensorParams {
+            lowpass: Some(LowpassParams { cutoff_hz: 20_000.0, order: 4 }),
+            delay_s: 4.58e-4,
+            ..SensorParams::default()
+        }),
+    ];
+    for spec in specs {
+        let name = format!("{spec:?}");
+        let mut b = spec.build(FS).unwrap();
+        let dc = match &b {
+            Block::Creep(c) => c.dc_gain(),
+            Block::Amplifier(_) => 20.0,
+            Block::Sensor(_) => 0.2,
+            _ => 1.0,
+        };
+        for x0 in [1.1, -3.7] {
+            // Fresh, after reset, and after reset_state (a new record).
+            for round in 0..3 {
+                match round {
+                    1 => b.reset(),
+                    2 => b.reset_state(),
+                    _ => {}
+                }
+                let y = constant_response(&mut b, x0, 20_000);
+                let want = (dc * x0).clamp(-30.0, 180.0);
+                assert!((y[0] - want).abs() < 1e-12 * want.abs().max(1.0), "{name} x0={x0}: first {} vs {want}", y[0]);
+                let r = ripple(&y);
+                assert!(r < 1e-10 * want.abs().max(1.0), "{name} x0={x0} round {round}: ripple {r}");
+            }
+            b.reset();
+        }
+    }
+}
+
+/// The paper stage without noise and quantization, driven by a constant from the
+/// first sample.
+fn quiet_paper(extra: &str) -> Chain {
+    preset("paper", &format!(r#"{{"noise_std": 0, "dac_bits": 0, "adc_bits": 0{extra}}}"#)).unwrap()
+}
+
+#[test]
+fn paper_stage_is_at_rest_from_the_first_sample() {
+    for extra in ["", r#", "delay": true"#] {
+        for u0 in [0.0, 3.75] {
+            let mut c = quiet_paper(extra);
+            let y: Vec<f64> = (0..30_000).map(|_| c.step(u0)).collect();
+            // u = 0 gives about 1.1 µm of hysteresis output: 0.22 V at the sensor.
+            if u0 == 0.0 {
+                assert!(y[0] > 0.1, "first output {}", y[0]);
+            }
+            let r = ripple(&y);
+            assert!(r < 1e-9, "u0={u0} {extra}: ripple {r} V");
+            let dev: Vec<f64> = y[..(FS / 780.0 * 20.0) as usize].iter().map(|v| v - y[0]).collect();
+            assert!(amplitude_at(&dev, 780.0, FS) < 1e-12);
+            // The same after reset and after reset_state.
+            c.reset();
+            let y2: Vec<f64> = (0..30_000).map(|_| c.step(u0)).collect();
+            assert_eq!(y, y2);
+            c.reset_state();
+            assert!(ripple(&(0..30_000).map(|_| c.step(u0)).collect::<Vec<_>>()) < 1e-9);
+        }
+    }
+    // With the default noise and quantization: nothing at the resonance beyond the
+    // noise floor (1 nm noise; a ringing start from rest at 0 is ~1 µm).
+    let mut c = preset("paper", "{}").unwrap();
+    let y: Vec<f64> = (0..(FS / 780.0 * 39.0).round() as usize).map(|_| c.step(0.0)).collect();
+    let a = amplitude_at(&y, 780.0, FS) / 0.2;
+    assert!(a < 1e-4, "780 Hz content {a} µm");
+}
+
+#[test]
+fn reset_state_keeps_absolute_time_and_settles_again() {
+    let mut c = preset(
+        "paper",
+        r#"{"noise_std": 0, "dac_bits": 0, "adc_bits": 0, "drift_offset_per_s": 1.0, "creep": false}"#,
+    )
+    .unwrap();
+    let y1: Vec<f64> = (0..1000).map(|k| c.step(2.0 + (k as f64 * 0.01).sin())).collect();
+    let t = c.time_s();
+    assert!((t - 0.01).abs() < 1e-12);
+    c.reset_state();
+    assert!((c.time_s() - t).abs() < 1e-12);
+    // Constant input: output = rest value + the drift's offset ramp over absolute time.
+    let y2: Vec<f64> = (0..1000).map(|_| c.step(1.0)).collect();
+    for (k, v) in y2.iter().enumerate() {
+        let drift = (k as f64) / FS; // offset_per_s = 1 per second since the first
+        assert!((v - y2[0] - drift).abs() < 1e-9, "k={k}: {v} vs {}", y2[0] + drift);
+    }
+    let mut fresh = preset(
+        "paper",
+        r#"{"noise_std": 0, "dac_bits": 0, "adc_bits": 0, "drift_offset_per_s": 1.0, "creep": false}"#,
+    )
+    .unwrap();
+    assert!((y2[0] - fresh.step(1.0) - t).abs() < 1e-9, "drift offset at t = 0.01 s is included");
+    // A full reset replays the first record exactly.
+    c.reset();
+    let y3: Vec<f64> = (0..1000).map(|k| c.step(2.0 + (k as f64 * 0.01).sin())).collect();
+    assert_eq!(y1, y3);
 }

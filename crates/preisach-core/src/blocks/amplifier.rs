@@ -30,8 +30,9 @@ impl Default for AmplifierParams {
     }
 }
 
-/// Gain, then saturation, then slew limit. At rest the output is 0 V (clamped into
-/// the saturation band).
+/// Gain, then saturation, then slew limit. Starts at rest with its first input: the
+/// slew limiter starts at the first (saturated) value, so the first sample is not
+/// slew-limited.
 #[derive(Debug, Clone)]
 pub struct Amplifier {
     params: AmplifierParams,
@@ -39,6 +40,8 @@ pub struct Amplifier {
     hi: f64,
     max_step: f64,
     last: f64,
+    /// Whether `last` is set (false until the first `step` after a reset).
+    settled: bool,
 }
 
 impl Amplifier {
@@ -63,7 +66,7 @@ impl Amplifier {
             None => f64::INFINITY,
         };
         let last = 0.0f64.clamp(lo, hi);
-        Ok(Amplifier { params, lo, hi, max_step, last })
+        Ok(Amplifier { params, lo, hi, max_step, last, settled: false })
     }
 
     pub fn params(&self) -> &AmplifierParams {
@@ -73,12 +76,18 @@ impl Amplifier {
     #[inline]
     pub fn step(&mut self, x: f64) -> f64 {
         let v = (self.params.gain * x).clamp(self.lo, self.hi);
+        if !self.settled {
+            self.last = v;
+            self.settled = true;
+        }
         let v = self.last + (v - self.last).clamp(-self.max_step, self.max_step);
         self.last = v;
         v
     }
 
+    /// Back to rest: the next `step` starts at its own (saturated) value.
     pub fn reset(&mut self) {
         self.last = 0.0f64.clamp(self.lo, self.hi);
+        self.settled = false;
     }
 }

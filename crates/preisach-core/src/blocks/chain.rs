@@ -13,6 +13,10 @@
 //!
 //! Block types: `amplifier`, `hysteresis`, `creep`, `vibration`, `sensor`, `lowpass`,
 //! `delay`, `noise`, `quantizer`, `drift`.
+//!
+//! A record starts at rest: blocks start in equilibrium with the first sample (after
+//! construction, [`Chain::reset`] and [`Chain::reset_state`]), so a constant input
+//! gives a constant output from the first sample, apart from noise and drift.
 
 use serde::{Deserialize, Serialize};
 
@@ -302,15 +306,16 @@ impl Chain {
         }
     }
 
-    /// Full reset: rest state, time 0, noise streams from their seeds (a replay gives
-    /// the same output).
+    /// Full reset: rest state (in equilibrium with the next sample), time 0, noise
+    /// streams from their seeds (a replay gives the same output).
     pub fn reset(&mut self) {
         self.n = 0;
         self.t0 = 0.0;
         self.blocks.iter_mut().for_each(Block::reset);
     }
 
-    /// Back to rest for a new record: absolute time and noise streams run on.
+    /// Back to rest (in equilibrium with the next sample) for a new record: absolute
+    /// time and noise streams run on.
     pub fn reset_state(&mut self) {
         self.blocks.iter_mut().for_each(Block::reset_state);
     }

@@ -7,6 +7,10 @@
 //!
 //! Discretized exactly for a zero-order-held input: `z ← a z + (1 − a) x`,
 //! `a = exp(−T/τ)`; the output is taken after the update (end of the hold interval).
+//!
+//! A record starts at rest: on the first `step` after construction or `reset` every
+//! element starts at its steady state for that input (`z_k = x`, fully crept), so a
+//! constant input gives the constant output `dc_gain · x` from the first sample.
 
 use super::{non_negative, positive};
 use crate::error::{PreisachError, Result};
@@ -42,6 +46,8 @@ pub struct Creep {
     params: CreepParams,
     a: Vec<f64>,
     z: Vec<f64>,
+    /// Whether the states are set (false until the first `step` after a reset).
+    settled: bool,
 }
 
 impl Creep {
@@ -65,7 +71,7 @@ impl Creep {
             a.push((-1.0 / (tau * sample_rate_hz)).exp());
         }
         let z = vec![0.0; a.len()];
-        Ok(Creep { params, a, z })
+        Ok(Creep { params, a, z, settled: false })
     }
 
     pub fn params(&self) -> &CreepParams {
@@ -79,6 +85,10 @@ impl Creep {
 
     #[inline]
     pub fn step(&mut self, x: f64) -> f64 {
+        if !self.settled {
+            self.z.iter_mut().for_each(|z| *z = x);
+            self.settled = true;
+        }
         let mut y = x;
         for ((z, &a), &c) in self.z.iter_mut().zip(&self.a).zip(&self.params.gains) {
             *z = a * *z + (1.0 - a) * x;
@@ -87,7 +97,9 @@ impl Creep {
         y
     }
 
+    /// Back to rest: the next `step` starts in equilibrium with its input.
     pub fn reset(&mut self) {
         self.z.iter_mut().for_each(|z| *z = 0.0);
+        self.settled = false;
     }
 }

@@ -9,7 +9,16 @@
 //! volts (piezo) → hysteresis µm → creep/vibration µm → sensor volts (1/5 V/µm).
 //! Blocks themselves are unit-agnostic except where a doc comment says otherwise.
 //!
-//! No per-sample path allocates: buffers are sized at construction.
+//! A record starts at rest: blocks start in equilibrium with the first sample. On
+//! the first `step` after construction, `reset` or `reset_state`, every stateful
+//! linear block sets its state to the steady state for that input (low-pass and
+//! vibration at DC gain, creep fully crept, the delay line filled with it, the
+//! amplifier's slew limiter at its first value), so a constant input gives a constant
+//! output from the first sample. The hysteresis memory starts as before (all relays
+//! down, then the first input); drift and noise have nothing to settle.
+//!
+//! No per-sample path allocates: buffers are sized at construction (a flag is
+//! checked per sample for the settling).
 
 pub mod amplifier;
 pub mod chain;

@@ -2,6 +2,10 @@
 //! noise, ADC quantizer, and the [`Sensor`] that chains them behind a gain
 //! (capacitive gauge: 1/5 V/µm in the seed's setup, §3.1). `lowpass`, `delay`,
 //! `noise` and `quantizer` are also blocks of their own.
+//!
+//! A record starts at rest: the low-pass and the delay start in equilibrium with the
+//! first sample (constant in, constant out from the first sample); noise and
+//! quantizer have no state to settle.
 
 use super::rng::Rng;
 use super::{below_nyquist, finite, non_negative};
@@ -46,15 +50,35 @@ impl Biquad {
         self.s2 = self.b2 * x - self.a2 * y;
         y
     }
+
+    /// DC gain `(b0 + b1 + b2) / (1 + a1 + a2)`.
+    fn dc_gain(&self) -> f64 {
+        (self.b0 + self.b1 + self.b2) / (1.0 + self.a1 + self.a2)
+    }
+
+    /// States of the steady state for a constant input `x`: the output is
+    /// `dc_gain · x`. Returns that output.
+    fn settle(&mut self, x: f64) -> f64 {
+        let y = self.dc_gain() * x;
+        self.s1 = y - self.b0 * x;
+        self.s2 = self.b2 * x - self.a2 * y;
+        y
+    }
 }
 
 /// Butterworth low-pass by the bilinear transform with the cutoff prewarped, so the
 /// digital filter has DC gain 1 and exactly −3 dB at `cutoff_hz`.
+///
+/// Starts at rest with its first input: on the first `step` after construction or
+/// `reset` the states are set to the steady state for that input (as if it had been
+/// applied forever), so a constant input gives a constant output from the first sample.
 #[derive(Debug, Clone)]
 pub struct Lowpass {
     params: LowpassParams,
     sections: [Biquad; 2],
     n: usize,
+    /// Whether the states are set (false until the first `step` after a reset).
+    settled: bool,
 }
 
 impl Lowpass {
@@ -87,7 +111,7 @@ impl Lowpass {
             };
             n += 1;
         }
-        Ok(Lowpass { params, sections, n })
+        Ok(Lowpass { params, sections, n, settled: false })
     }
 
     pub fn params(&self) -> &LowpassParams {
@@ -96,6 +120,9 @@ impl Lowpass {
 
     #[inline]
     pub fn step(&mut self, x: f64) -> f64 {
+        if !self.settled {
+            self.settle(x);
+        }
         let mut y = x;
         for s in &mut self.sections[..self.n] {
             y = s.step(y);
@@ -103,11 +130,23 @@ impl Lowpass {
         y
     }
 
+    /// Set the states to the steady state for a constant input `x`.
+    #[cold]
+    fn settle(&mut self, x: f64) {
+        let mut y = x;
+        for s in &mut self.sections[..self.n] {
+            y = s.settle(y);
+        }
+        self.settled = true;
+    }
+
+    /// Back to rest: the next `step` starts in equilibrium with its input.
     pub fn reset(&mut self) {
         for s in &mut self.sections {
             s.s1 = 0.0;
             s.s2 = 0.0;
         }
+        self.settled = false;
     }
 }
 
@@ -125,11 +164,14 @@ pub struct DelayParams {
 }
 
 /// Pure delay `y[n] = x(n − D)`, `D = delay_s · f_s` samples: an integer ring buffer
-/// plus linear interpolation for the fractional part (exact on ramps). The buffer
-/// starts at zero (the signal was 0 before the first sample).
+/// plus linear interpolation for the fractional part (exact on ramps). Starts at
+/// rest with its first input: on the first `step` after construction or `reset` the
+/// line is filled with that input (the signal held it before the first sample).
 #[derive(Debug, Clone)]
 pub struct Delay {
     params: DelayParams,
+    /// Whether the line is filled (false until the first `step` after a reset).
+    settled: bool,
     buf: Vec<f64>,
     mask: usize,
     head: usize,
@@ -157,7 +199,7 @@ impl Delay {
         }
         // Power-of-two length: the index wraps with a mask, no division per sample.
         let len = (n_int + 2).next_power_of_two();
-        Ok(Delay { params, buf: vec![0.0; len], mask: len - 1, head: 0, n_int, frac })
+        Ok(Delay { params, settled: false, buf: vec![0.0; len], mask: len - 1, head: 0, n_int, frac })
     }
 
     pub fn params(&self) -> &DelayParams {
@@ -171,6 +213,9 @@ impl Delay {
 
     #[inline]
     pub fn step(&mut self, x: f64) -> f64 {
+        if !self.settled {
+            self.settle(x);
+        }
         self.head = (self.head + 1) & self.mask;
         self.buf[self.head] = x;
         let a = self.buf[(self.head.wrapping_sub(self.n_int)) & self.mask];
@@ -178,9 +223,17 @@ impl Delay {
         a + self.frac * (b - a)
     }
 
+    /// Fill the line with `x`.
+    #[cold]
+    fn settle(&mut self, x: f64) {
+        self.buf.iter_mut().for_each(|v| *v = x);
+        self.settled = true;
+    }
+
+    /// Back to rest: the next `step` fills the line with its input.
     pub fn reset(&mut self) {
-        self.buf.iter_mut().for_each(|v| *v = 0.0);
         self.head = 0;
+        self.settled = false;
     }
 }
 
@@ -319,7 +372,8 @@ impl Default for SensorParams {
     }
 }
 
-/// gain → low-pass → delay → noise → ADC.
+/// gain → low-pass → delay → noise → ADC. Starts at rest with its first input (the
+/// low-pass and delay settle on it; see [`Lowpass`], [`Delay`]).
 #[derive(Debug, Clone)]
 pub struct Sensor {
     params: SensorParams,

@@ -2,6 +2,11 @@
 //! `G(s) = ω² / (s² + 2ζω s + ω²)`, discretized exactly for a zero-order-held input
 //! (`A_d = exp(A T)`, `B_d = A⁻¹ (A_d − I) B`; nalgebra 2×2 maths). The output of a
 //! sample is the mode's position at the end of its hold interval.
+//!
+//! A record starts at rest: on the first `step` after construction or `reset` every
+//! mode starts in equilibrium with that input (the discrete fixed point
+//! `x = (I − A_d)⁻¹ B_d u`: position = DC gain · u, velocity 0), so a constant input
+//! gives a constant output from the first sample and no ringing.
 
 use super::{below_nyquist, positive};
 use crate::error::Result;
@@ -30,14 +35,18 @@ pub struct VibrationParams {
 struct DiscreteMode {
     ad: Matrix2<f64>,
     bd: Vector2<f64>,
+    /// Steady state per unit input, `(I − A_d)⁻¹ B_d` (≈ [1, 0]).
+    xss: Vector2<f64>,
     x: Vector2<f64>,
 }
 
-/// Modes in series; see the module doc.
+/// Modes in series; see the module doc (starts at rest with its first input).
 #[derive(Debug, Clone)]
 pub struct Vibration {
     params: VibrationParams,
     modes: Vec<DiscreteMode>,
+    /// Whether the states are set (false until the first `step` after a reset).
+    settled: bool,
 }
 
 impl Vibration {
@@ -54,9 +63,11 @@ impl Vibration {
             // A is invertible for ω > 0 (det = ω²).
             let a_inv = Matrix2::new(-2.0 * z * w, -1.0, w * w, 0.0) / (w * w);
             let bd = a_inv * (ad - Matrix2::identity()) * b;
-            modes.push(DiscreteMode { ad, bd, x: Vector2::zeros() });
+            // I − A_d is invertible: the eigenvalues of A_d lie inside the unit circle.
+            let xss = (Matrix2::identity() - ad).try_inverse().unwrap_or_else(Matrix2::zeros) * bd;
+            modes.push(DiscreteMode { ad, bd, xss, x: Vector2::zeros() });
         }
-        Ok(Vibration { params, modes })
+        Ok(Vibration { params, modes, settled: false })
     }
 
     pub fn params(&self) -> &VibrationParams {
@@ -65,6 +76,9 @@ impl Vibration {
 
     #[inline]
     pub fn step(&mut self, x: f64) -> f64 {
+        if !self.settled {
+            self.settle(x);
+        }
         let mut u = x;
         for m in &mut self.modes {
             m.x = m.ad * m.x + m.bd * u;
@@ -73,7 +87,20 @@ impl Vibration {
         u
     }
 
+    /// Every mode at its steady state for a constant input `x`.
+    #[cold]
+    fn settle(&mut self, x: f64) {
+        let mut u = x;
+        for m in &mut self.modes {
+            m.x = m.xss * u;
+            u = m.x[0];
+        }
+        self.settled = true;
+    }
+
+    /// Back to rest: the next `step` starts in equilibrium with its input.
     pub fn reset(&mut self) {
         self.modes.iter_mut().for_each(|m| m.x = Vector2::zeros());
+        self.settled = false;
     }
 }
