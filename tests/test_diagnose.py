@@ -89,7 +89,8 @@ def test_delay_found_with_parameters_and_cli_outputs(delay_stage, tmp_path):
 ])
 def test_small_blind_validation(names, seed):
     """Key goals on a few fixed-seed stages: right top-1, no false alarm, mode within 3 %,
-    realised shrink on the unseen record."""
+    drift gain within 10 %, creep element within 25 %, realised shrink >= 70 % on the
+    unseen record."""
     st = bv.make_stage(seed, names)
     rep = diagnose(st["train"], [_rec(h) for h in st["holdouts"]], progress=False)
     found = {e["name"] for e in rep.effects if e["detected"]}
@@ -97,9 +98,16 @@ def test_small_blind_validation(names, seed):
         assert not (found & DYNAMIC), f"false alarm {found}"
         return
     assert rep.dominant_effect == names[0]
+    got = {e["name"]: e["params"] for e in rep.effects if e["detected"]}
+    true = st["params"][names[0]]
     if names[0] == "vibration":
-        f = [e for e in rep.effects if e["name"] == "vibration"][0]["params"]["frequency_hz"]
-        assert abs(f / st["params"]["vibration"]["frequency_hz"] - 1) < 0.03
+        assert abs(got["vibration"]["frequency_hz"] / true["frequency_hz"] - 1) < 0.03
+    if names[0] == "drift":
+        assert abs(got["drift"]["gain_per_s"] / true["gain_per_s"] - 1) < 0.10
+    if names[0] == "creep":
+        # One element recovered: time constant and gain within 25 %.
+        assert abs(got["creep"]["taus_s"][0] / true["taus_s"][0] - 1) < 0.25
+        assert abs(got["creep"]["amplitudes"][0] / true["amplitudes"][0] - 1) < 0.25
     b = st["blind"]
     ch = Chain.from_dict(rep.augmented_chain_dict())
     from preisach import PreisachModel
@@ -107,4 +115,5 @@ def test_small_blind_validation(names, seed):
     base = PreisachModel.from_dict(rep.baseline_model_dict())
     e_aug = np.sqrt(np.mean((ch.predict(b["t"], b["u"]) - b["y"]) ** 2))
     e_base = np.sqrt(np.mean((base.predict(b["u"]) - b["y"]) ** 2))
-    assert e_aug < 0.7 * e_base
+    # The goal: realised shrink >= 70 % on the unseen record.
+    assert e_aug < 0.3 * e_base

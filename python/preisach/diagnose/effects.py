@@ -428,7 +428,9 @@ class ChainFitter:
         p0 = dict(eff[name])
         if name == "delay":
             d = p0["delay_s"]
-            lo, hi, setp = max(0.0, 0.5 * d), 2.0 * d + r.dt, lambda p, x: dict(p, delay_s=x)
+            # The fixed-mass estimate falls well short where the masses absorbed the
+            # delay (wider loops): a coarse grid up to 4x before the golden search.
+            lo, hi, setp = max(0.0, 0.5 * d), 4.0 * d + 2 * r.dt, lambda p, x: dict(p, delay_s=x)
         elif name == "lowpass":
             c = math.log(p0["cutoff_hz"])
             lo, hi, setp = c - math.log(3.0), c + math.log(1.5), lambda p, x: dict(p, cutoff_hz=math.exp(x))
@@ -445,7 +447,10 @@ class ChainFitter:
             cache[x] = (err, m)
             return err
 
-        x, _ = _golden(f, lo, hi, iters)
+        if name == "delay":
+            x, _ = _grid_then_golden(f, np.linspace(lo, hi, 8), iters)
+        else:
+            x, _ = _golden(f, lo, hi, iters)
         e = dict(eff)
         e[name] = setp(p0, x)
         return e, cache[x][1]
