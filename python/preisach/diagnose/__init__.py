@@ -247,6 +247,30 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
                 break
             tried[c]["refused"] = why
             _say(progress, f"round {rnd + 1}: {c} refused ({why})")
+        if best is None and rnd == 0 and len(results) > 1:
+            # Look-ahead for a masked pair: a slow effect (drift, creep) fitted on the
+            # training record is biased by an unmodelled fast one, and the fast one alone
+            # gains little while the slow one dominates the holdouts. Add the slow effect
+            # on top of the best fast candidate; accept both when the pair passes the rule.
+            fast = [c for c in results if c not in ("drift", "creep")]
+            if fast:
+                f1 = min(fast, key=lambda c: results[c][1])
+                for slow in ("drift", "creep"):
+                    if slow not in dyn or f1 == slow:
+                        continue
+                    st2 = fitter.fit(results[f1][0].effects, slow, iters=2, start=results[f1][0].model, only_new=True)
+                    sc2, parts2 = score_parts(st2)
+                    _say(progress, f"round 1: + {f1} + {slow} holdout RMSE {sc2:.4g}")
+                    g2 = (cur_score - sc2) / cur_score if cur_score > 0 else 0.0
+                    g1 = (results[f1][1] - sc2) / results[f1][1] if results[f1][1] > 0 else 0.0
+                    if g2 >= min_shrink and g1 >= min_shrink and cur_score - sc2 >= 0.5 * floor \
+                            and not trivial(f1, st2.effects[f1], floor) and not trivial(slow, st2.effects[slow], floor):
+                        accepted.append(f1)
+                        tried[slow] = {"state": st2, "rmse_after": sc2, "rmse_current": results[f1][1],
+                                       "score": g1, "round": 2}
+                        results = {slow: (st2, sc2, parts2)}
+                        best = slow
+                        break
         if best is None:
             break
         accepted.append(best)
