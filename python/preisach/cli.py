@@ -186,6 +186,7 @@ _nonneg_int = _int_at_least(0)
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``preisach`` argument parser with every subcommand."""
     p = _Parser(prog="preisach", description="Identify, invert, simulate and diagnose the Preisach "
                 "hysteresis model of a piezo stage. Records are CSV with header t,u,y (or .npz).")
     from preisach import __version__
