@@ -249,21 +249,7 @@ fn noise_is_white_gaussian_with_its_std() {
 // ------------------------------------------------------------------ hysteresis
 
 fn parametric() -> ParametricHysteresis {
-    ParametricHysteresis {
-        lo: -30.0,
-        hi: 180.0,
-        n_h: 500,
-        hysteretic_stroke: 30.0,
-        coercivity_median: 12.0,
-        coercivity_sigma: 0.7,
-        interaction_mean: Some(75.0),
-        interaction_sigma: 45.0,
-        reversible_slope: 0.06,
-        reversible_saturation: 1.5,
-        reversible_width: Some(90.0),
-        offset: 0.0,
-        interpolated: true,
-    }
+    preisach_core::blocks::presets::paper_hysteresis(500)
 }
 
 #[test]

@@ -86,6 +86,27 @@ impl Default for PaperOptions {
     }
 }
 
+/// The `paper` preset's "true" hysteresis on `n_h` levels: a stroke of about 30 µm over
+/// −30…180 V, log-normal coercivity around 12 V, Gaussian interaction, plus a reversible
+/// part.
+pub fn paper_hysteresis(n_h: usize) -> ParametricHysteresis {
+    ParametricHysteresis {
+        lo: -30.0,
+        hi: 180.0,
+        n_h,
+        hysteretic_stroke: 30.0,
+        coercivity_median: 12.0,
+        coercivity_sigma: 0.7,
+        interaction_mean: Some(75.0),
+        interaction_sigma: 45.0,
+        reversible_slope: 0.06,
+        reversible_saturation: 1.5,
+        reversible_width: Some(90.0),
+        offset: 0.0,
+        interpolated: true,
+    }
+}
+
 /// The `paper` stage (see the module doc).
 pub fn paper(o: &PaperOptions) -> Result<Chain> {
     let delay_s = match o.delay {
@@ -104,21 +125,7 @@ pub fn paper(o: &PaperOptions) -> Result<Chain> {
         saturation: Some([-30.0, 180.0]),
         slew_v_per_s: None,
     }));
-    blocks.push(BlockSpec::Hysteresis(HysteresisParams::Parametric(ParametricHysteresis {
-        lo: -30.0,
-        hi: 180.0,
-        n_h: o.n_h,
-        hysteretic_stroke: 30.0,
-        coercivity_median: 12.0,
-        coercivity_sigma: 0.7,
-        interaction_mean: Some(75.0),
-        interaction_sigma: 45.0,
-        reversible_slope: 0.06,
-        reversible_saturation: 1.5,
-        reversible_width: Some(90.0),
-        offset: 0.0,
-        interpolated: true,
-    })));
+    blocks.push(BlockSpec::Hysteresis(HysteresisParams::Parametric(paper_hysteresis(o.n_h))));
     if o.creep {
         blocks.push(BlockSpec::Creep(CreepParams::log_law(o.creep_per_decade, 0.1, 100.0)));
     }
