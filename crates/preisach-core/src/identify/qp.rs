@@ -57,28 +57,20 @@ fn neighbour_pairs(n_h: usize) -> Vec<(usize, usize)> {
     p
 }
 
-/// Upper-triangular CSC from (row, col, value) triplets with row <= col; duplicates summed.
+/// Upper-triangular CSC from keyed values (`key(row, col)`); duplicates summed.
 fn csc_upper(n: usize, mut trip: Vec<(u64, f64)>) -> CscMatrix<f64> {
     trip.sort_unstable_by_key(|t| t.0);
-    let mut colptr = vec![0usize; n + 1];
-    let mut rowval = Vec::with_capacity(trip.len());
-    let mut nzval: Vec<f64> = Vec::with_capacity(trip.len());
+    let mut merged: Vec<(usize, usize, f64)> = Vec::with_capacity(trip.len());
     let mut last = u64::MAX;
-    for (key, v) in trip {
-        if key == last {
-            *nzval.last_mut().unwrap() += v;
-            continue;
+    for (k, v) in trip {
+        if k == last {
+            merged.last_mut().unwrap().2 += v;
+        } else {
+            last = k;
+            merged.push(((k & 0xffff_ffff) as usize, (k >> 32) as usize, v));
         }
-        last = key;
-        let (col, row) = ((key >> 32) as usize, (key & 0xffff_ffff) as usize);
-        colptr[col + 1] += 1;
-        rowval.push(row);
-        nzval.push(v);
     }
-    for c in 0..n {
-        colptr[c + 1] += colptr[c];
-    }
-    CscMatrix::new(n, n, colptr, rowval, nzval)
+    csc_sorted(n, n, merged)
 }
 
 #[inline]
@@ -90,6 +82,11 @@ fn key(row: usize, col: usize) -> u64 {
 /// General CSC (m × n) from (row, col, value) triplets.
 fn csc_general(m: usize, n: usize, mut trip: Vec<(usize, usize, f64)>) -> CscMatrix<f64> {
     trip.sort_unstable_by_key(|t| (t.1, t.0));
+    csc_sorted(m, n, trip)
+}
+
+/// CSC from triplets already sorted by (col, row).
+fn csc_sorted(m: usize, n: usize, trip: Vec<(usize, usize, f64)>) -> CscMatrix<f64> {
     let mut colptr = vec![0usize; n + 1];
     let mut rowval = Vec::with_capacity(trip.len());
     let mut nzval = Vec::with_capacity(trip.len());
