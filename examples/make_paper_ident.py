@@ -1,6 +1,6 @@
 """Regenerate ``paper_ident.csv``: the paper's identification input (an increasing-
 amplitude sine with 100 reversals, seed §3.2, Fig. 6a) run through the simulated
-``paper`` stage at 100 kHz, kept at 10 kHz. Columns t [s], u [DAC V], y [sensor V]."""
+``paper`` stage at 100 kHz (which starts at rest), kept at 10 kHz. Columns t [s], u [DAC V], y [sensor V]."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -15,7 +15,6 @@ n_rev, f = 100, 20.0
 t = np.arange(int(fs * n_rev / (2 * f))) / fs
 u = 3.75 + 3.75 * np.linspace(0.02, 1.0, t.size) * np.sin(2 * np.pi * f * t)
 stage = Stage.preset("paper")
-stage.run(np.full(int(0.1 * fs), u[0]))  # settle at rest before recording
 y = stage.run(u)
 keep = slice(None, None, 10)
 out = Path(__file__).with_name("paper_ident.csv")
