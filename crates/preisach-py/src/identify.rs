@@ -77,15 +77,20 @@ fn regression_rows<'py>(
         preisach_core::error::check_signal("u", u).map_err(to_py)?;
         preisach_core::error::check_signal("y", y).map_err(to_py)?;
         let grid = Grid::new(u_range.0, u_range.1, n_h).map_err(to_py)?;
-        let rows = build_rows(&grid, u, y, interpolated);
         let n_q = grid.n_q();
+        // Without the GIL: the diagnoser builds rows for several candidates in threads.
+        let (a, rows) = py.detach(|| {
+            let rows = build_rows(&grid, u, y, interpolated);
+            let m = rows.n_rows();
+            let mut a = vec![0.0; m * (n_q + 1)];
+            for r in 0..m {
+                let row = &mut a[r * (n_q + 1)..(r + 1) * (n_q + 1)];
+                rows.add_mass_row(r, 1.0, &mut row[..n_q]);
+                row[n_q] = rows.offset_coef[r];
+            }
+            (a, rows)
+        });
         let m = rows.n_rows();
-        let mut a = vec![0.0; m * (n_q + 1)];
-        for r in 0..m {
-            let row = &mut a[r * (n_q + 1)..(r + 1) * (n_q + 1)];
-            rows.add_mass_row(r, 1.0, &mut row[..n_q]);
-            row[n_q] = rows.offset_coef[r];
-        }
         let a = a.into_pyarray(py).reshape([m, n_q + 1])?;
         Ok((a, rows.weight.into_pyarray(py), rows.target.into_pyarray(py), rows.within_ss))
     })

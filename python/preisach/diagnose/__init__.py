@@ -17,8 +17,11 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
+import warnings
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Optional, Sequence, Union
 
@@ -28,7 +31,7 @@ from preisach.chain import Chain, sample_period
 from preisach.diagnose.effects import CANDIDATES, ChainFitter, FitState, Record, export_state, rmse
 from preisach.diagnose.report import GapReport, evidence_text
 from preisach.diagnose.where import localize, noise_floor, signatures
-from preisach.model import PreisachModel
+from preisach.model import PreisachModel, PreisachWarning
 
 __all__ = ["diagnose", "GapReport", "run_cli", "CANDIDATES"]
 
@@ -84,7 +87,7 @@ def _say(progress: bool, msg: str) -> None:
 def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
              baseline: Optional[Union[str, Path, Chain]] = None,
              candidates: Sequence[str] = CANDIDATES + ("discretization",), min_shrink: float = 0.10,
-             fit_rate_hz: float = 25e3, progress: bool = True) -> GapReport:
+             fit_rate_hz: float = 25e3, progress: bool = True, workers: Optional[int] = None) -> GapReport:
     """Diagnose the gap between the baseline model and the measurements.
 
     Parameters
@@ -104,10 +107,14 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
     fit_rate_hz : float
         Augmented chains are fitted on the training record point-decimated to about this
         rate (the effects of interest lie below 2 kHz); scoring uses full-rate holdouts.
+    workers : int, optional
+        Candidate fits run in this many threads (default: up to 2, the CPUs available).
 
     Returns a :class:`GapReport`.
     """
     t_start = time.perf_counter()
+    if workers is None:
+        workers = min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
     if isinstance(holdouts, (str, Path, dict)) or (isinstance(holdouts, tuple) and len(holdouts) == 3
                                                     and not isinstance(holdouts[0], (str, Path, dict, tuple))):
         holdouts = [holdouts]  # type: ignore[list-item]
@@ -123,7 +130,6 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
     _say(progress, f"baseline fit on {tr.name} ({tr.u.size} samples, n_h={n_h})")
 
     # The baseline, exactly as `preisach identify` makes it (or the given chain).
-    import warnings
 
     base_effects: dict[str, dict[str, Any]] = {}
     if baseline is not None:
@@ -213,14 +219,23 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
             _say(progress, "residual at the noise floor; stopping")
             break
         results = {}
-        for c in dyn:
-            if c in accepted:
-                continue
+
+        def one(c: str, cur: FitState = cur) -> tuple[str, FitState, float, np.ndarray, float]:
             t0 = time.perf_counter()
-            st = fitter.fit(cur.effects, c, iters=2, start=cur.model, only_new=True)
+            st = fitter.clone().fit(cur.effects, c, iters=2, start=cur.model, only_new=True)
             sc, parts = score_parts(st)
-            results[c] = (st, sc, parts)
-            _say(progress, f"round {rnd + 1}: + {c:10s} holdout RMSE {sc:.4g} ({time.perf_counter() - t0:.1f} s)")
+            return c, st, sc, parts, time.perf_counter() - t0
+
+        todo = [c for c in dyn if c not in accepted]
+        # Candidates are independent: two at a time (the core and NumPy's large-array
+        # kernels release the GIL). The slow ones first, so the pool stays busy.
+        todo.sort(key=lambda c: c not in ("delay", "lowpass", "creep", "drift"))
+        with warnings.catch_warnings(), ThreadPoolExecutor(max_workers=max(1, min(workers, len(todo)))) as ex:
+            warnings.simplefilter("ignore", PreisachWarning)
+            for c, st, sc, parts, el in ex.map(lambda c: one(c), todo):
+                results[c] = (st, sc, parts)
+                _say(progress, f"round {rnd + 1}: + {c:10s} holdout RMSE {sc:.4g} ({el:.1f} s)")
+        results = {c: results[c] for c in dyn if c in results}
         if not results:
             break
         for c, (st, sc, _) in results.items():
@@ -236,11 +251,14 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
             if gain < min_shrink:
                 break
             why = None
-            if cur_score - sc < 0.5 * floor:
+            extra = [k for k in st.effects if k not in cur.effects and k != c]
+            if any(x in results and (results[x][1] - sc) < min_shrink * results[x][1] for x in extra):
+                why = f"no better than {', '.join(extra)} alone"
+            elif cur_score - sc < 0.5 * floor:
                 why = "improvement below half the noise floor"
             elif rnd > 0 and np.any(parts > cur_parts * 1.05 + 1e-12):
                 why = "worsens part of a holdout"
-            elif trivial(c, st.effects[c], floor):
+            elif any(trivial(x, st.effects[x], floor) for x in [c] + extra):
                 why = "trivial parameters"
             if why is None:
                 best = c
@@ -275,6 +293,11 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
             break
         accepted.append(best)
         cur, cur_score, cur_parts = results[best]
+        for x in cur.effects:
+            if x not in accepted and x not in base_effects:
+                # Fitted with it as a pair (a mode whose ringing needed a delay).
+                accepted.append(x)
+                tried[x] = dict(tried[best], score=tried.get(x, {}).get("score", tried[best]["score"]))
         # Polish the accepted chain (all kept effects refitted jointly with the masses, then
         # each effect's main scalar profiled) so the next round credits a new effect only
         # with its own improvement, not with further convergence of the effects kept.

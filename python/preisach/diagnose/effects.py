@@ -12,6 +12,7 @@ chain is the interpolated (continuous) model.
 from __future__ import annotations
 
 import math
+import threading
 import warnings
 from dataclasses import dataclass, field
 from typing import Any, Callable, Optional
@@ -84,6 +85,10 @@ def fit_masses(u: NDArray[np.float64], y: NDArray[np.float64], n_h: int, u_range
     exactly, so this costs about as much as the stepwise fit); ``cap`` subsamples to
     about that many rows (see :func:`_rows`)."""
     idx = _rows(u, cap) if cap else slice(None)
+    if threading.current_thread() is not threading.main_thread():
+        # catch_warnings is not thread-safe; diagnose() silences PreisachWarning around
+        # its worker threads.
+        return PreisachModel.fit(u[idx], y[idx], n_h, u_range=u_range, output="interpolated", solver="structured")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return PreisachModel.fit(u[idx], y[idx], n_h, u_range=u_range, output="interpolated", solver="structured")
@@ -243,6 +248,12 @@ class ChainFitter:
         self.cap = cap
         self._rowls: dict[float, RowLS] = {}
         self.last_gain = 0.0
+        self.last_mode_delay = 0.0
+
+    def clone(self) -> "ChainFitter":
+        """A fitter on the same record with its own caches and scratch state (one per
+        thread when candidates are fitted in parallel)."""
+        return ChainFitter(self.rec, self.n_h, self.u_range, self.cap)
 
     # -- masses given effects ------------------------------------------------------
     def masses(self, effects: dict[str, dict[str, Any]], prev: Optional[PreisachModel], n_h: Optional[int] = None) -> PreisachModel:
@@ -353,6 +364,84 @@ class ChainFitter:
         tau = math.exp(lt) / (1 - th)
         return {"taus_s": [float(tau)], "amplitudes": [float(th)], "_norm": True}, ob, e0
 
+    def mode_search(self, others: dict[str, dict[str, Any]], h: NDArray[np.float64],
+                    cur: Optional[dict[str, Any]]) -> dict[str, Any]:
+        """A lightly damped mode: frequency and damping fitted on the error in a band
+        around the mode (0.6x to 1.6x its frequency). A broadband error lets the mode
+        stand in for an unmodelled delay or lag (a heavily damped mode at the wrong
+        frequency); in the band the ringing dominates whatever else is missing. When the
+        chain has no delay or low-pass yet, the band fit allows a delay as a nuisance
+        (in the band a delay is a phase shift: an unmodelled 0.3 ms puts a 1.5 kHz
+        ringing out of phase, so the true mode looks worse than none); the delay found
+        is left in ``last_mode_delay`` (the caller may add it as an effect)."""
+        r = self.rec
+        base = apply_effects(others, r.t, r.u, h, r.dt)
+        n = r.y.size
+        f = np.fft.rfftfreq(n, r.dt)
+        ramp = np.linspace(0.0, 1.0, n)
+
+        def spec(x: NDArray[np.float64]) -> NDArray[np.complex128]:
+            # Spectrum of x less the line through its end points: the record is then
+            # continuous when wrapped, so a delay is a phase shift (no wrap-around jump).
+            return np.fft.rfft(x - x[0] - (x[-1] - x[0]) * ramp)
+
+        Y = spec(r.y)
+        nyq = 0.5 / r.dt
+        nuisance = "delay" not in others and "lowpass" not in others
+        dgrid = np.arange(0.0, 1.5e-3, 2e-5) if nuisance else np.zeros(1)
+        found_d = [0.0]
+
+        phc: dict[tuple[float, float], NDArray[np.complex128]] = {}
+
+        def band_err(p: dict[str, Any], m: tuple[float, float]) -> float:
+            e = dict(others)
+            e["vibration"] = p
+            mk = (f > m[0]) & (f < m[1])
+            P = spec(apply_effects(e, r.t, r.u, h, r.dt))[mk]
+            if dgrid.size == 1:
+                return float(np.sum(np.abs(P - Y[mk]) ** 2))
+            if m not in phc:
+                phc[m] = np.exp(-2j * np.pi * np.outer(dgrid, f[mk]))
+            errs = np.sum(np.abs(P[None, :] * phc[m] - Y[mk][None, :]) ** 2, axis=1)
+            k = int(np.argmin(errs))
+            found_d[0] = float(dgrid[k])
+            return float(errs[k])
+
+        def refine(f0: float, zeta: float, span: float) -> tuple[float, float, float, float]:
+            # The error is oscillatory in the frequency (the phase of a long ringing turns
+            # quickly with it): grids first, golden searches between grid neighbours.
+            m = (0.6 * f0, 1.6 * f0)
+            lz, _ = _grid_then_golden(lambda lz: band_err({"frequency_hz": f0, "damping": math.exp(lz)}, m),
+                                      np.linspace(math.log(2e-3), math.log(0.3), 12), 8)
+            zeta = math.exp(lz)
+            lf, _ = _grid_then_golden(lambda lf: band_err({"frequency_hz": math.exp(lf), "damping": zeta}, m),
+                                      np.linspace(math.log(f0 * (1 - span)), math.log(min(f0 * (1 + span), 0.45 * nyq)),
+                                                  15), 8)
+            f0 = math.exp(lf)
+            lz, _ = _golden(lambda lz: band_err({"frequency_hz": f0, "damping": math.exp(lz)}, m),
+                            lz - 0.4, min(lz + 0.4, math.log(0.5)), 10)
+            zeta = math.exp(lz)
+            fx = band_err({"frequency_hz": f0, "damping": zeta}, m)
+            return f0, zeta, fx, found_d[0]
+
+        self.last_mode_delay = 0.0
+        if cur is not None:
+            f0, zeta, _, d = refine(cur["frequency_hz"], cur["damping"], 0.01)
+            self.last_mode_delay = d
+            return {"frequency_hz": float(f0), "damping": float(zeta)}
+        B = spec(base)
+        best = None
+        for fc in (_mode_guess(r.y - base, r.dt) or [1000.0]):
+            mk = (f > 0.6 * fc) & (f < 1.6 * fc)
+            e0 = float(np.sum(np.abs(B[mk] - Y[mk]) ** 2))
+            f1, z1, e1, d1 = refine(fc, 0.02, 0.03)
+            ratio = e1 / e0 if e0 > 0 else 1.0
+            if best is None or ratio < best[2]:
+                best = (f1, z1, ratio, d1)
+        assert best is not None
+        self.last_mode_delay = best[3]
+        return {"frequency_hz": float(best[0]), "damping": float(best[1])}
+
     # -- effect parameters given masses -------------------------------------------
     def params(self, name: str, effects: dict[str, dict[str, Any]], h: NDArray[np.float64]) -> dict[str, Any]:
         r = self.rec
@@ -380,24 +469,7 @@ class ChainFitter:
             assert best is not None
             return best[0]
         if name == "vibration":
-            if cur is None:
-                base = apply_effects(others, r.t, r.u, h, r.dt)
-                zeta = 0.02
-                cands = _mode_guess(r.y - base, r.dt) or [1000.0]
-                f0 = min(cands, key=lambda f: err({"frequency_hz": f, "damping": zeta}))
-                span = 0.1
-            else:
-                f0, zeta, span = cur["frequency_hz"], cur["damping"], 0.03
-            nyq = 0.5 / r.dt
-            for _ in range(2):
-                lf, _ = _golden(lambda lf: err({"frequency_hz": math.exp(lf), "damping": zeta}),
-                                math.log(f0 * (1 - span)), math.log(min(f0 * (1 + span), 0.45 * nyq)), 14)
-                f0 = math.exp(lf)
-                lz, _ = _golden(lambda lz: err({"frequency_hz": f0, "damping": math.exp(lz)}),
-                                math.log(1e-3), math.log(0.5), 14)
-                zeta = math.exp(lz)
-                span = 0.02
-            return {"frequency_hz": float(f0), "damping": float(zeta)}
+            return self.mode_search(others, h, cur)
         if name == "creep":
             pc, ob, e0 = self.creep_search(effects, h)
             self.last_gain = 1 - ob / e0 if e0 > 0 else 0.0
@@ -471,12 +543,20 @@ class ChainFitter:
             if new in ("creep", "drift"):
                 iters = 1  # their searches refit the masses exactly already
         e0 = None
+        extra: list[str] = []
         for it in range(iters):
             h = model.predict(r.u)
             if e0 is None:
                 e0 = float(np.mean((apply_effects(eff, r.t, r.u, h, r.dt) - r.y) ** 2))
             for name in names:
                 eff[name] = self.params(name, eff, h)
+            if it == 0 and new == "vibration" and "delay" not in eff and "lowpass" not in eff \
+                    and self.last_mode_delay > 0.5 * r.dt:
+                # The mode's band fit needed a delay (the ringing is out of phase without
+                # it): the candidate is the pair mode + delay, fitted jointly.
+                eff["delay"] = {"delay_s": self.last_mode_delay}
+                names = [k for k in ORDER if k in names or k == "delay"]
+                extra.append("delay")
             if it == 0 and new is not None and new not in ("drift", "creep"):
                 # Gate: an effect that does not lower the training error at fixed masses by
                 # 2 % will not shrink the holdout error by 10 % either; skip the costly part.
@@ -489,6 +569,8 @@ class ChainFitter:
             model = self.masses(eff, model, n_h)
             if new is not None and it == 0 and new in eff:
                 eff, model = self.profile(new, eff, model)
+                for x in extra:
+                    eff, model = self.profile(x, eff, model)
         pred = apply_effects(eff, r.t, r.u, model.predict(r.u), r.dt)
         return FitState(model, eff, rmse(pred - r.y))
 
