@@ -2,6 +2,7 @@
 //! masses with a free offset in one QP, over merged rows, with the paper's pitfalls
 //! reported.
 
+pub mod pg;
 pub mod qp;
 pub mod rows;
 
@@ -23,6 +24,8 @@ pub enum Solver {
     Clarabel,
     /// Sparse QP in Everett coordinates, clarabel; never forms the dense matrix.
     Structured,
+    /// Gradient projection + CG with A and Aᵀ applied through the Everett table (large n_h).
+    Gradient,
 }
 
 impl Solver {
@@ -31,9 +34,10 @@ impl Solver {
             "auto" => Ok(Solver::Auto),
             "clarabel" => Ok(Solver::Clarabel),
             "structured" => Ok(Solver::Structured),
+            "gradient" => Ok(Solver::Gradient),
             _ => Err(PreisachError::invalid(
                 "solver",
-                format!("expected 'auto', 'clarabel' or 'structured', got {s:?}"),
+                format!("expected 'auto', 'clarabel', 'structured' or 'gradient', got {s:?}"),
             )),
         }
     }
@@ -158,10 +162,24 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
     // Both solvers' memory grows faster than n_q (the sparse interior point's factor like
     // n_q^1.5: n_h = 100 fits in under a second, n_h = 1000 took over 1.4 GB and many
     // minutes): refuse before allocating rather than exhaust the machine.
-    if n_h > MAX_N_H_STRUCTURED {
+    if opts.solver == Solver::Gradient {
+        // The operator-based solver holds a few n_q-sized buffers: refuse only what
+        // cannot fit (checked before allocating).
+        let need = pg::gradient_bytes(n_h, u.len());
+        if need > pg::MEMORY_BUDGET {
+            return Err(PreisachError::invalid(
+                "n_h",
+                format!(
+                    "{n_h} is too large to identify in memory: the gradient solver needs about {:.1} GB (budget {:.0} GB)",
+                    need / 1e9,
+                    pg::MEMORY_BUDGET / 1e9
+                ),
+            ));
+        }
+    } else if n_h > MAX_N_H_STRUCTURED {
         return Err(PreisachError::invalid(
             "n_h",
-            format!("{n_h} is too large to identify in memory (identification handles n_h <= {MAX_N_H_STRUCTURED})"),
+            format!("{n_h} is too large to identify in memory (the interior-point solvers handle n_h <= {MAX_N_H_STRUCTURED}; solver='gradient' goes further)"),
         ));
     }
     let (u_min, u_max) = min_max(u);
@@ -192,6 +210,7 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
         Solver::Auto => Solver::Structured,
         s => s,
     };
+    let mut unconverged: Option<u32> = None;
     let sol = match solver {
         Solver::Clarabel => {
             let need = dense_bytes(rows.n_rows(), n_free);
@@ -206,6 +225,13 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
             }
             qp::solve_dense(&pb)?
         }
+        Solver::Gradient => {
+            let (sol, ok) = pg::solve_gradient_with(&pb, &pg::Settings::default())?;
+            if !ok {
+                unconverged = Some(sol.iterations);
+            }
+            sol
+        }
         _ => qp::solve_everett(&pb)?,
     };
     let model = PreisachModel::new(grid.clone(), sol.masses, sol.offset)?;
@@ -219,6 +245,11 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
     let sse: f64 = pred.iter().zip(y).map(|(p, t)| (p - t) * (p - t)).sum();
 
     let mut warnings = Vec::new();
+    if let Some(it) = unconverged {
+        warnings.push(format!(
+            "the gradient solver stopped on its iteration cap ({it} Hessian products) before the optimality tolerance: the fit is approximate"
+        ));
+    }
     if reversals < n_h {
         warnings.push(format!(
             "only {reversals} input reversals for n_h = {n_h}: fewer than n_h, so not every relay is switched on and off (seed §3.2); use more reversals or a smaller n_h"
@@ -246,7 +277,11 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
         input_max: u_max,
         lo,
         hi,
-        solver: if solver == Solver::Clarabel { "clarabel" } else { "structured" },
+        solver: match solver {
+            Solver::Clarabel => "clarabel",
+            Solver::Gradient => "gradient",
+            _ => "structured",
+        },
         iterations: sol.iterations,
         warnings,
     };
