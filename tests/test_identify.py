@@ -24,7 +24,7 @@ def test_identification_recovers_known_masses_and_offset_noise_free(rng):
         w = random_weights(rng, n)
         truth = PreisachModel(w, (-1.0, 1.0), offset=-0.4)
         u = forc_input(-1.0, 1.0, n)
-        for solver in ["clarabel", "structured"]:
+        for solver in ["active", "clarabel", "structured"]:
             m = PreisachModel.fit(u, truth.predict(u), n, u_range=(-1.0, 1.0), solver=solver)
             scale = w.max()
             assert np.max(np.abs(m.weights - w)) <= 1e-6 * scale
@@ -60,13 +60,14 @@ def test_solvers_agree_and_match_or_beat_scipy_nnls_on_the_same_rows(rng):
     f_scipy = _objective(A, counts, target, within, x_scipy)
     iu = np.triu_indices(n)
     fs = {}
-    for solver in ["clarabel", "structured"]:
+    for solver in ["active", "clarabel", "structured"]:
         m = PreisachModel.fit(u, y, n, u_range=(0.0, 1.0), solver=solver)
         xm = np.concatenate([m.weights[iu], [m.offset]])
         fs[solver] = _objective(A, counts, target, within, xm)
         assert fs[solver] <= f_scipy * (1 + 1e-9)
         assert m.report.rmse == pytest.approx(np.sqrt(fs[solver]), rel=1e-9)
     assert fs["clarabel"] == pytest.approx(fs["structured"], rel=1e-7)
+    assert fs["active"] == pytest.approx(fs["clarabel"], rel=1e-7)
 
 
 def test_merged_rows_are_exact():

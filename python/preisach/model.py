@@ -29,7 +29,8 @@ class FitReport:
     ``n_samples``, ``n_rows`` (distinct relay states after merging), ``reversals``,
     ``cells_never_excited`` (never switched on; fixed to 0), ``cells_switched_once``
     (switched on but never off), ``input_range``, ``u_range``, ``solver``,
-    ``iterations``, ``warnings`` (list of sentences)."""
+    ``iterations``, ``time_rows_s`` and ``time_solve_s`` (wall time spent merging the
+    samples into rows and solving the QP), ``warnings`` (list of sentences)."""
 
     rmse: float
     n_samples: int
@@ -41,6 +42,8 @@ class FitReport:
     u_range: tuple[float, float]
     solver: str
     iterations: int
+    time_rows_s: float
+    time_solve_s: float
     warnings: list[str]
 
     def __init__(self, d: dict[str, Any]) -> None:
@@ -137,10 +140,19 @@ class PreisachModel:
         reg : float
             Smoothness weight: adds ``reg * sum (w_a - w_b)^2`` over neighbouring cells to
             the mean squared residual (both in output units squared). Default 0.
-        solver : {"auto", "clarabel", "structured"}
-            ``clarabel``: dense QP over the masses (AᵀWA formed; small n_h).
-            ``structured``: sparse QP in Everett coordinates, never forms the dense matrix
-            (any n_h). ``auto`` picks the dense one for up to 600 free cells.
+        solver : {"auto", "active", "clarabel", "structured", "gradient"}
+            All are exact (the same optimum). ``active``: primal–dual active set on the
+            sparse Everett-coordinate KKT system, a handful of sparse factorizations
+            (fastest for small and mid-size n_h; hands over to ``structured`` if it has
+            not settled after 40 steps). ``structured``: clarabel's interior point on the
+            sparse QP in Everett coordinates; never forms the dense matrix.
+            ``clarabel``: clarabel on the dense QP over the masses (AᵀWA formed; a
+            reference, slow beyond a few hundred cells). These three handle n_h <= 600.
+            ``gradient``: projected gradient / conjugate gradients with A and Aᵀ applied
+            through the Everett table, for any n_h that fits in memory; it stops on a
+            work cap on large problems and then warns that the fit is approximate.
+            ``auto``: ``active`` up to 2000 free cells, else ``structured``.
+            ``report.solver`` says which ran.
         output : {"stepwise", "interpolated"}
             Which model to fit (see the class docstring).
 

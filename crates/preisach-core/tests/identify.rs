@@ -42,7 +42,7 @@ fn max_rel_err(a: &PreisachModel, b: &PreisachModel) -> f64 {
 #[test]
 fn identification_recovers_known_masses_and_offset_from_noise_free_data() {
     let mut rng = Rng::new(11);
-    for solver in [Solver::Clarabel, Solver::Structured] {
+    for solver in [Solver::Clarabel, Solver::Structured, Solver::Active] {
         let truth = random_model(&mut rng, 12);
         let u = forc_input(&truth);
         let y = run(&truth, &u);
@@ -71,6 +71,63 @@ fn dense_and_structured_solvers_agree_on_noisy_data() {
     let pb = run(&b, &u);
     let d = pa.iter().zip(&pb).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
     assert!(d < 1e-4 * truth.everett().total(), "predictions differ by {d}");
+}
+
+#[test]
+fn active_set_solver_reaches_the_interior_point_optimum() {
+    // Noisy data (many masses at zero), with and without smoothing, stepwise and
+    // interpolated, and an input that never reaches the top (cells fixed to zero).
+    let mut rng = Rng::new(15);
+    for (k, (reg, interpolated, top)) in
+        [(0.0, false, 2.5), (1e-3, false, 2.5), (0.0, true, 2.5), (0.0, false, 1.2)].into_iter().enumerate()
+    {
+        let truth = random_model(&mut rng, 14);
+        let u: Vec<f64> = random_input(&mut rng, 15_000).into_iter().map(|v| v.min(top)).collect();
+        let mut y = if interpolated {
+            let mut y = vec![0.0; u.len()];
+            truth.run_interpolated(&mut truth.interp_memory(), &u, &mut y);
+            y
+        } else {
+            run(&truth, &u)
+        };
+        for v in y.iter_mut() {
+            *v += 0.2 * (rng.uniform() - 0.5);
+        }
+        let mut o = opts(&truth, Solver::Active);
+        o.reg = reg;
+        o.interpolated = interpolated;
+        let (_, ra) = fit(&u, &y, &o).unwrap();
+        assert_eq!(ra.solver, "active", "case {k} fell back to the interior point");
+        o.solver = Solver::Clarabel;
+        let (_, rc) = fit(&u, &y, &o).unwrap();
+        // The active-set point is an exact KKT point: never worse than the interior point.
+        assert!(ra.rmse <= rc.rmse * (1.0 + 1e-9), "case {k}: {} vs {}", ra.rmse, rc.rmse);
+        assert!(ra.rmse >= rc.rmse * (1.0 - 1e-7), "case {k}: {} vs {}", ra.rmse, rc.rmse);
+    }
+}
+
+#[test]
+fn auto_solver_is_exact_on_degenerate_interpolated_problems() {
+    // Input well inside the model range: border cells never excited, many Everett values
+    // unobserved. The active-set method may give up here; `auto` must still return the
+    // optimum (never a non-finite model).
+    let mut rng = Rng::new(16);
+    for n_h in [20, 40] {
+        let truth = random_model(&mut rng, n_h);
+        let u: Vec<f64> = random_input(&mut rng, 30_000).into_iter().map(|v| v.clamp(-0.8, 1.8)).collect();
+        let mut y = vec![0.0; u.len()];
+        truth.run_interpolated(&mut truth.interp_memory(), &u, &mut y);
+        for v in y.iter_mut() {
+            *v += 0.1 * (rng.uniform() - 0.5);
+        }
+        let mut o = opts(&truth, Solver::Auto);
+        o.interpolated = true;
+        let (m, ra) = fit(&u, &y, &o).unwrap();
+        assert!(m.offset().is_finite() && m.masses().iter().all(|w| w.is_finite() && *w >= 0.0));
+        o.solver = Solver::Clarabel;
+        let (_, rc) = fit(&u, &y, &o).unwrap();
+        assert!(ra.rmse <= rc.rmse * (1.0 + 1e-9), "n_h {n_h}: {} ({}) vs {}", ra.rmse, ra.solver, rc.rmse);
+    }
 }
 
 #[test]

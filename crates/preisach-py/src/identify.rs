@@ -49,6 +49,8 @@ fn fit<'py>(
         d.set_item("u_range", (rep.lo, rep.hi))?;
         d.set_item("solver", rep.solver)?;
         d.set_item("iterations", rep.iterations)?;
+        d.set_item("time_rows_s", rep.time_rows_s)?;
+        d.set_item("time_solve_s", rep.time_solve_s)?;
         d.set_item("warnings", rep.warnings)?;
         Ok((Model { inner: Arc::new(model) }, d))
     })

@@ -2,6 +2,7 @@
 //! masses with a free offset in one QP, over merged rows, with the paper's pitfalls
 //! reported.
 
+pub mod active;
 pub mod pg;
 pub mod qp;
 pub mod rows;
@@ -15,6 +16,12 @@ pub use rows::{build_rows, Rows};
 /// Largest n_h the structured solver accepts (its sparse factor grows like n_q^1.5).
 pub const MAX_N_H_STRUCTURED: usize = 600;
 
+/// `auto` uses the active-set solver up to this many free cells (it needs a handful of
+/// sparse factorizations there; beyond, its step count grows and the interior point wins).
+pub const ACTIVE_AUTO_MAX: usize = 2000;
+/// Step cap of the active-set solver before it hands over to the interior point.
+pub const ACTIVE_STEPS: u32 = 40;
+
 /// Which exact solver to use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Solver {
@@ -24,7 +31,10 @@ pub enum Solver {
     Clarabel,
     /// Sparse QP in Everett coordinates, clarabel; never forms the dense matrix.
     Structured,
-    /// Gradient projection + CG with A and Aᵀ applied through the Everett table (large n_h).
+    /// Primal–dual active set on the sparse Everett-coordinate KKT system (exact; the
+    /// fastest for small and mid-size n_h).
+    Active,
+    /// Projected Newton-CG with A and Aᵀ applied through the Everett table (large n_h).
     Gradient,
 }
 
@@ -34,10 +44,11 @@ impl Solver {
             "auto" => Ok(Solver::Auto),
             "clarabel" => Ok(Solver::Clarabel),
             "structured" => Ok(Solver::Structured),
+            "active" => Ok(Solver::Active),
             "gradient" => Ok(Solver::Gradient),
             _ => Err(PreisachError::invalid(
                 "solver",
-                format!("expected 'auto', 'clarabel', 'structured' or 'gradient', got {s:?}"),
+                format!("expected 'auto', 'active', 'clarabel', 'structured' or 'gradient', got {s:?}"),
             )),
         }
     }
@@ -76,6 +87,9 @@ pub struct FitReport {
     pub hi: f64,
     pub solver: &'static str,
     pub iterations: u32,
+    /// Wall time spent building the merged rows and solving the QP.
+    pub time_rows_s: f64,
+    pub time_solve_s: f64,
     /// The paper's pitfalls (§3.3) met by this data, as sentences.
     pub warnings: Vec<String>,
 }
@@ -199,19 +213,31 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
         }
     }
 
+    let t_rows = std::time::Instant::now();
     let rows = build_rows(&grid, u, y, opts.interpolated);
+    let time_rows_s = t_rows.elapsed().as_secs_f64();
     let mu = y.iter().sum::<f64>() / y.len() as f64;
     let var = y.iter().map(|v| (v - mu) * (v - mu)).sum::<f64>() / y.len() as f64;
     let scale = if var > 0.0 { var.sqrt() } else { mu.abs().max(1.0) };
     let pb = Problem { rows: &rows, mu, scale, zero: &zero, reg: opts.reg };
     let n_free = zero.iter().filter(|z| !**z).count();
     let solver = match opts.solver {
-        Solver::Auto if n_free <= 600 => Solver::Clarabel,
+        Solver::Auto if n_free <= ACTIVE_AUTO_MAX => Solver::Active,
         Solver::Auto => Solver::Structured,
         s => s,
     };
     let mut unconverged: Option<u32> = None;
+    let t_solve = std::time::Instant::now();
+    let mut solver = solver;
     let sol = match solver {
+        Solver::Active => match active::solve_active(&pb, None, ACTIVE_STEPS)? {
+            Some(sol) => sol,
+            None => {
+                // Did not settle within the step cap: the interior point always does.
+                solver = Solver::Structured;
+                qp::solve_everett(&pb)?
+            }
+        },
         Solver::Clarabel => {
             let need = dense_bytes(rows.n_rows(), n_free);
             if need > 4e9 {
@@ -226,7 +252,7 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
             qp::solve_dense(&pb)?
         }
         Solver::Gradient => {
-            let (sol, ok) = pg::solve_gradient_with(&pb, &pg::Settings::default())?;
+            let (sol, ok) = pg::solve_gradient_with(&pb, &pg::Settings::for_problem(&pb))?;
             if !ok {
                 unconverged = Some(sol.iterations);
             }
@@ -234,6 +260,7 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
         }
         _ => qp::solve_everett(&pb)?,
     };
+    let time_solve_s = t_solve.elapsed().as_secs_f64();
     let model = PreisachModel::new(grid.clone(), sol.masses, sol.offset)?;
 
     let mut pred = vec![0.0; u.len()];
@@ -280,9 +307,12 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
         solver: match solver {
             Solver::Clarabel => "clarabel",
             Solver::Gradient => "gradient",
+            Solver::Active => "active",
             _ => "structured",
         },
         iterations: sol.iterations,
+        time_rows_s,
+        time_solve_s,
         warnings,
     };
     Ok((model, report))

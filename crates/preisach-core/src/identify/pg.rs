@@ -44,6 +44,17 @@ pub struct Settings {
     pub max_hess: u32,
 }
 
+impl Settings {
+    /// The defaults with the work bounded by the problem size (about 2·10⁹ element
+    /// operations: n_h = 1000 stops after ~4000 Hessian products, tens of seconds,
+    /// instead of 20 000) rather than one product count for every size.
+    pub fn for_problem(pb: &Problem) -> Self {
+        let size = (pb.rows.n_vars() + pb.rows.idx.len()) as f64;
+        let max_hess = (2e9 / size).clamp(1000.0, 20_000.0) as u32;
+        Settings { max_hess, ..Settings::default() }
+    }
+}
+
 impl Default for Settings {
     fn default() -> Self {
         Settings { tol: 1e-10, max_outer: 500, max_cg: 400, max_gp: 50, max_hess: 20_000 }
@@ -421,7 +432,6 @@ pub(crate) fn solve_scaled(ops: &mut Ops, x0: Option<&[f64]>, st: &Settings) -> 
     let mut free = vec![false; n_q];
     let mut res = vec![0.0; m];
     let mut zr = vec![0.0; m];
-    let debug = std::env::var_os("PG_DEBUG").is_some();
 
     // Reference gradient scale: the gradient at x = 0.
     xt.iter_mut().for_each(|v| *v = 0.0);
@@ -433,13 +443,9 @@ pub(crate) fn solve_scaled(ops: &mut Ops, x0: Option<&[f64]>, st: &Settings) -> 
     ops.gradient(&x, &mut res, &mut g);
     let mut hv = 0u32;
     let mut converged = false;
-    for outer in 0..st.max_outer {
+    for _ in 0..st.max_outer {
         projected_gradient(&x, &g, &ops.fixed, &mut pg);
         let kkt = norm_inf(&pg);
-        if debug {
-            let npos = x.iter().filter(|&&v| v > 0.0).count();
-            eprintln!("outer {outer}: f {f:.12e} kkt {:.3e} hess {hv} positive {npos}", kkt / g0);
-        }
         if kkt <= st.tol * g0 {
             converged = true;
             break;
@@ -488,9 +494,7 @@ pub(crate) fn solve_scaled(ops: &mut Ops, x0: Option<&[f64]>, st: &Settings) -> 
         pre.apply(&cr, &free, &mut cz);
         cp.copy_from_slice(&cz);
         let mut rz = dot(&cr, &cz);
-        let mut ncg = 0;
         for _ in 0..st.max_cg {
-            ncg += 1;
             ops.hess(&cp, &free, &mut zr, &mut hp);
             hv += 1;
             let php = dot(&cp, &hp);
@@ -513,9 +517,6 @@ pub(crate) fn solve_scaled(ops: &mut Ops, x0: Option<&[f64]>, st: &Settings) -> 
                 cp[k] = cz[k] + beta * cp[k];
             }
         }
-        if debug {
-            eprintln!("  cg {ncg} residual {:.3e} of {rn0:.3e} (eta {eta:.1e})", dot(&cr, &cr).sqrt());
-        }
         if let Some(ft) = projected_search(ops, &x, &d, &g, f, 1.0, &mut xt, &mut zr) {
             std::mem::swap(&mut x, &mut xt);
             std::mem::swap(&mut res, &mut zr);
@@ -532,7 +533,7 @@ pub(crate) fn solve_scaled(ops: &mut Ops, x0: Option<&[f64]>, st: &Settings) -> 
 /// The operator-based solver: gradient projection and CG on the masses, offset
 /// eliminated. `iterations` counts Hessian-vector products.
 pub fn solve_gradient(pb: &Problem) -> Result<Solution> {
-    Ok(solve_gradient_with(pb, &Settings::default())?.0)
+    Ok(solve_gradient_with(pb, &Settings::for_problem(pb))?.0)
 }
 
 /// [`solve_gradient`] with explicit settings; also whether the KKT tolerance was met

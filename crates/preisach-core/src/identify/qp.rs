@@ -23,6 +23,9 @@ use super::rows::{mass_from_everett, Rows};
 use crate::error::{PreisachError, Result};
 use crate::grid::cell_index;
 
+/// Active-set steps allowed when polishing an interior-point solution.
+const POLISH_STEPS: u32 = 4;
+
 /// Problem data shared by both solvers.
 pub struct Problem<'a> {
     pub rows: &'a Rows,
@@ -74,7 +77,7 @@ fn csc_upper(n: usize, mut trip: Vec<(u64, f64)>) -> CscMatrix<f64> {
 }
 
 #[inline]
-fn key(row: usize, col: usize) -> u64 {
+pub(super) fn key(row: usize, col: usize) -> u64 {
     let (r, c) = if row <= col { (row, col) } else { (col, row) };
     ((c as u64) << 32) | r as u64
 }
@@ -114,6 +117,19 @@ fn run_clarabel(
     n_zero: usize,
     n_rows: usize,
 ) -> Result<(Vec<f64>, u32)> {
+    let first = ipm(p, q, a_trip, n, n_zero, n_rows)?;
+    polish(p, q, a_trip, n, n_zero, n_rows, first)
+}
+
+/// The interior point on the full problem (first `n_zero` constraint rows equalities).
+fn ipm(
+    p: &CscMatrix<f64>,
+    q: &[f64],
+    a_trip: &[(usize, usize, f64)],
+    n: usize,
+    n_zero: usize,
+    n_rows: usize,
+) -> Result<Iterate> {
     let a = csc_general(n_rows, n, a_trip.to_vec());
     let mut cones = Vec::new();
     if n_zero > 0 {
@@ -122,7 +138,20 @@ fn run_clarabel(
     if n_rows > n_zero {
         cones.push(NonnegativeConeT(n_rows - n_zero));
     }
-    let (x, s, z, iters) = clarabel_once(p, q, &a, &cones)?;
+    clarabel_once(p, q, &a, &cones)
+}
+
+/// Polish an interior-point iterate with equality-constrained clarabel solves.
+fn polish(
+    p: &CscMatrix<f64>,
+    q: &[f64],
+    a_trip: &[(usize, usize, f64)],
+    n: usize,
+    n_zero: usize,
+    n_rows: usize,
+    first: Iterate,
+) -> Result<(Vec<f64>, u32)> {
+    let (x, s, z, iters) = first;
     // Active set: zero-cone rows, and inequality rows whose slack is below the multiplier.
     let mut active: Vec<bool> = (0..n_rows).map(|r| r < n_zero || s[r] < z[r]).collect();
     let obj = |x: &[f64]| {
@@ -202,9 +231,10 @@ fn clarabel_once(p: &CscMatrix<f64>, q: &[f64], a: &CscMatrix<f64>, cones: &[Sup
     Ok((sol.x.clone(), sol.s.clone(), sol.z.clone(), sol.iterations))
 }
 
-/// The structured solver: Everett coordinates, sparse objective, masses >= 0 as
-/// second differences.
-pub fn solve_everett(pb: &Problem) -> Result<Solution> {
+/// The objective in Everett coordinates (variables: the n_q Everett values, then the
+/// offset): upper-triangular Hessian triplets keyed by [`key`] (duplicates to be summed)
+/// and the linear term, for `½ xᵀPx + qᵀx`.
+pub(super) fn everett_objective(pb: &Problem) -> (Vec<(u64, f64)>, Vec<f64>) {
     let rows = pb.rows;
     let n_h = rows.n_h;
     let n_q = rows.n_vars();
@@ -227,10 +257,10 @@ pub fn solve_everett(pb: &Problem) -> Result<Solution> {
             }
         }
     }
-    let mut d1 = Vec::new();
-    let mut d2 = Vec::new();
-    let cell_ij = cell_coords(n_h);
     if pb.reg > 0.0 {
+        let mut d1 = Vec::new();
+        let mut d2 = Vec::new();
+        let cell_ij = cell_coords(n_h);
         for (c1, c2) in neighbour_pairs(n_h) {
             let (i1, j1) = cell_ij[c1];
             let (i2, j2) = cell_ij[c2];
@@ -247,6 +277,18 @@ pub fn solve_everett(pb: &Problem) -> Result<Solution> {
             }
         }
     }
+    (trip, q)
+}
+
+/// The structured solver: Everett coordinates, sparse objective, masses >= 0 as
+/// second differences.
+pub fn solve_everett(pb: &Problem) -> Result<Solution> {
+    let n_h = pb.rows.n_h;
+    let n_q = pb.rows.n_vars();
+    let n = n_q + 1;
+    let (trip, q) = everett_objective(pb);
+    let mut d1 = Vec::new();
+    let cell_ij = cell_coords(n_h);
     let p = csc_upper(n, trip);
     // Constraints: fixed cells first (zero cone), then the rest (non-negative cone);
     // A x + s = 0 with A = −D, so s = D x = the masses.
@@ -261,7 +303,19 @@ pub fn solve_everett(pb: &Problem) -> Result<Solution> {
             at.push((r, k, -v));
         }
     }
-    let (x, iterations) = run_clarabel(&p, &q, &at, n, n_zero, n_q)?;
+    let first = ipm(&p, &q, &at, n, n_zero, n_q)?;
+    // Polish: the cells whose slack is below the multiplier are the active-set method's
+    // starting guess; from there it usually needs one or two factorizations to the exact
+    // optimum (the clarabel polish below is the fallback).
+    let mut guess = pb.zero.to_vec();
+    for (r, &c) in order.iter().enumerate() {
+        guess[c] |= first.1[r] < first.2[r];
+    }
+    if let Some(mut sol) = super::active::solve_active(pb, Some(guess), POLISH_STEPS)? {
+        sol.iterations += first.3;
+        return Ok(sol);
+    }
+    let (x, iterations) = polish(&p, &q, &at, n, n_zero, n_q, first)?;
     let mut masses = vec![0.0; n_q];
     for (c, m) in masses.iter_mut().enumerate() {
         if pb.zero[c] {
@@ -276,7 +330,7 @@ pub fn solve_everett(pb: &Problem) -> Result<Solution> {
 }
 
 /// (i, j) of each packed cell.
-fn cell_coords(n_h: usize) -> Vec<(usize, usize)> {
+pub(super) fn cell_coords(n_h: usize) -> Vec<(usize, usize)> {
     let mut v = Vec::with_capacity(n_h * (n_h + 1) / 2);
     for i in 0..n_h {
         for j in i..n_h {

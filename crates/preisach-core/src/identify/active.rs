@@ -1,0 +1,295 @@
+//! Exact primal–dual active-set solver of the identification QP (`solver="active"`).
+//!
+//! The variables are those of the structured solver ([`super::qp::solve_everett`]): the
+//! Everett values and the offset, with the masses (second differences, `D x`) >= 0. The
+//! objective is sparse there (O(depth²) per row), so one equality-constrained step is one
+//! sparse quasi-definite KKT solve:
+//!
+//! ```text
+//!   [ H    D_Aᵀ ] [ x ]   [ −q ]      H, q: the least-squares objective ½xᵀHx + qᵀx
+//!   [ D_A  0    ] [ ν ] = [  0 ]      A: masses guessed zero; multipliers λ = −ν
+//! ```
+//!
+//! The primal–dual active-set method (Hintermüller, Ito & Kunisch, SIAM J. Optim. 13,
+//! 2002) then moves to the guess {λ > 0} ∪ {mass < 0} and stops when the guess no longer
+//! changes: that is exactly the KKT conditions of the convex QP, so the point is optimal,
+//! with no interior-point tolerance to polish away. The KKT pattern holds every
+//! constraint column (inactive ones with zero entries), so the fill-reducing ordering and
+//! symbolic factorization are computed once and every step is a numeric refactorization
+//! (clarabel's QDLDL) plus iterative refinement against the unregularized matrix.
+//!
+//! Block switching can cycle when H is not an M-matrix (degenerate problems: many
+//! unobserved Everett values, masses at zero with zero multipliers). When the number of
+//! violated conditions has not fallen for a few steps, after a step cap, or if the
+//! refined KKT residual is not small or not finite, it returns `None` and the caller
+//! falls back to the interior point, so a failure costs a few factorizations. (Murty's
+//! single-pivot rule would terminate, but one flip per factorization is slower than the
+//! interior point.)
+
+use clarabel::algebra::CscMatrix;
+use clarabel::qdldl::{QDLDLFactorisation, QDLDLSettingsBuilder};
+
+use super::qp::{cell_coords, everett_objective, key, Problem, Solution};
+use super::rows::mass_from_everett;
+use crate::error::{PreisachError, Result};
+
+/// Steps without fewer violated conditions before giving up.
+const STALL_STEPS: u32 = 3;
+/// Refinement passes per step (each is one pair of triangular solves).
+const REFINE: usize = 6;
+
+/// The KKT matrix (upper triangle, CSC) with the positions needed to switch a
+/// constraint on or off.
+struct Kkt {
+    n: usize,
+    m: usize,
+    colptr: Vec<usize>,
+    rowval: Vec<usize>,
+    /// Values of the unregularized KKT matrix for the current active set.
+    val: Vec<f64>,
+    /// Regularization added on the diagonal for the factorization (per row/col).
+    reg: Vec<f64>,
+    /// Position of each diagonal entry in `val`.
+    diag: Vec<usize>,
+    /// Constraint coefficients (the D row of each mass), in column order.
+    dval: Vec<f64>,
+}
+
+impl Kkt {
+    fn build(pb: &Problem, trip: Vec<(u64, f64)>) -> Self {
+        let n_q = pb.rows.n_vars();
+        let n = n_q + 1;
+        let m = n_q;
+        let mut trip = trip;
+        trip.extend((0..n).map(|i| (key(i, i), 0.0)));
+        trip.sort_unstable_by_key(|t| t.0);
+        let mut colptr = vec![0usize; n + m + 1];
+        let mut rowval = Vec::with_capacity(trip.len() + 5 * m);
+        let mut val = Vec::with_capacity(trip.len() + 5 * m);
+        let mut last = u64::MAX;
+        for (k, v) in trip {
+            if k == last {
+                *val.last_mut().unwrap() += v;
+            } else {
+                last = k;
+                rowval.push((k & 0xffff_ffff) as usize);
+                val.push(v);
+                colptr[(k >> 32) as usize + 1] += 1;
+            }
+        }
+        for c in 0..n {
+            colptr[c + 1] += colptr[c];
+        }
+        let cell_ij = cell_coords(pb.rows.n_h);
+        let mut d = Vec::new();
+        let mut dval = Vec::with_capacity(4 * m);
+        for (c, &(i, j)) in cell_ij.iter().enumerate() {
+            mass_from_everett(i, j, &mut d);
+            d.sort_unstable_by_key(|e| e.0);
+            for &(k, v) in &d {
+                rowval.push(k);
+                val.push(v);
+                dval.push(v);
+            }
+            rowval.push(n + c);
+            val.push(0.0);
+            colptr[n + c + 1] = rowval.len();
+        }
+        let diag: Vec<usize> = (0..n + m).map(|c| colptr[c + 1] - 1).collect();
+        Kkt { n, m, colptr, rowval, val, reg: vec![0.0; n + m], diag, dval }
+    }
+
+    /// Set constraint `c` active (mass fixed to 0) or inactive (multiplier fixed to 0).
+    fn set(&mut self, c: usize, active: bool, eps: f64) {
+        let col = self.n + c;
+        let (s, e) = (self.colptr[col], self.colptr[col + 1] - 1);
+        let base = s - self.colptr[self.n] - c; // entries of D before this column
+        for (p, k) in (s..e).zip(base..) {
+            self.val[p] = if active { self.dval[k] } else { 0.0 };
+        }
+        self.val[e] = if active { 0.0 } else { -1.0 };
+        self.reg[col] = if active { -eps } else { 0.0 };
+    }
+
+    /// `out = K v` with the unregularized values.
+    fn mul(&self, v: &[f64], out: &mut [f64]) {
+        out.iter_mut().for_each(|o| *o = 0.0);
+        for j in 0..self.n + self.m {
+            for p in self.colptr[j]..self.colptr[j + 1] {
+                let i = self.rowval[p];
+                let a = self.val[p];
+                out[i] += a * v[j];
+                if i != j {
+                    out[j] += a * v[i];
+                }
+            }
+        }
+    }
+
+    /// Values with the regularization on the diagonal (what is factored).
+    fn regularized(&self, out: &mut [f64]) {
+        out.copy_from_slice(&self.val);
+        for (c, &p) in self.diag.iter().enumerate() {
+            out[p] += self.reg[c];
+        }
+    }
+}
+
+/// Solve the identification QP exactly by the primal–dual active-set method, starting
+/// from the guess `start` (cells believed to have zero mass; `None` = only the fixed
+/// ones). `Ok(None)` means it did not converge within `max_steps` (use the interior
+/// point instead).
+pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> Result<Option<Solution>> {
+    let n_q = pb.rows.n_vars();
+    let (trip, q) = everett_objective(pb);
+    let mut kkt = Kkt::build(pb, trip);
+    let (n, m) = (kkt.n, kkt.m);
+    let dim = n + m;
+    let hmax = (0..n).map(|i| kkt.val[kkt.diag[i]]).fold(0.0f64, f64::max);
+    if hmax <= 0.0 {
+        return Ok(None);
+    }
+    // Static regularization of the quasi-definite matrix (removed again by the
+    // refinement); 1e-9 let pivots of degenerate interpolated problems break down.
+    let eps = 1e-8 * hmax;
+    for i in 0..n {
+        kkt.reg[i] = eps;
+    }
+    let mut active: Vec<bool> = match start {
+        Some(mut a) if a.len() == pb.zero.len() => {
+            a.iter_mut().zip(pb.zero).for_each(|(a, &z)| *a |= z);
+            a
+        }
+        _ => pb.zero.to_vec(),
+    };
+    for (c, &a) in active.iter().enumerate() {
+        kkt.set(c, a, eps);
+    }
+    let mut kval = vec![0.0; kkt.val.len()];
+    kkt.regularized(&mut kval);
+    let mut signs = vec![1i8; dim];
+    signs[n..].iter_mut().for_each(|s| *s = -1);
+    let settings = QDLDLSettingsBuilder::default()
+        .Dsigns(signs)
+        .build()
+        .map_err(|e| PreisachError::Solver(format!("qdldl settings: {e}")))?;
+    let mat = CscMatrix::new(dim, dim, kkt.colptr.clone(), kkt.rowval.clone(), kval.clone());
+    let mut fact =
+        QDLDLFactorisation::new(&mat, Some(settings)).map_err(|e| PreisachError::Solver(format!("qdldl: {e:?}")))?;
+    let all: Vec<usize> = (0..kval.len()).collect();
+
+    let qmax = q.iter().fold(0.0f64, |a, v| a.max(v.abs())).max(1e-300);
+    let mut b = vec![0.0; dim];
+    for i in 0..n {
+        b[i] = -q[i];
+    }
+    let mut v = vec![0.0; dim];
+    let mut best = vec![0.0; dim];
+    let mut r = vec![0.0; dim];
+    let mut kv = vec![0.0; dim];
+    let mut w = vec![0.0; m];
+    let mut best_inf = usize::MAX;
+    let mut stall = 0;
+    let mut first = true;
+    for step in 1..=max_steps {
+        if !first {
+            kkt.regularized(&mut kval);
+            fact.update_values(&all, &kval);
+            fact.refactor().map_err(|e| PreisachError::Solver(format!("qdldl: {e:?}")))?;
+        }
+        first = false;
+        v.copy_from_slice(&b);
+        fact.solve(&mut v);
+        // Iterative refinement against the unregularized matrix. Where that matrix is
+        // singular (Everett values no row observes, masses free), refinement need not
+        // contract: keep the best iterate and stop as soon as the residual grows.
+        let mut res = f64::INFINITY;
+        for pass in 0..=REFINE {
+            kkt.mul(&v, &mut kv);
+            let mut rn = 0.0f64;
+            for i in 0..dim {
+                r[i] = b[i] - kv[i];
+                // A NaN must propagate (f64::max would drop it).
+                if r[i].is_nan() || r[i].abs() > rn {
+                    rn = r[i].abs();
+                }
+            }
+            if rn.is_nan() || rn >= res {
+                v.copy_from_slice(&best);
+                break;
+            }
+            res = rn;
+            best.copy_from_slice(&v);
+            if res <= 1e-13 * qmax || pass == REFINE {
+                break;
+            }
+            fact.solve(&mut r);
+            v.iter_mut().zip(&r).for_each(|(x, d)| *x += d);
+        }
+        if !res.is_finite() {
+            return Ok(None);
+        }
+        // Masses of the inactive cells and multipliers of the active ones.
+        let mut wmax = 0.0f64;
+        let mut lmax = 0.0f64;
+        for c in 0..m {
+            let col = n + c;
+            let mut s = 0.0;
+            for p in kkt.colptr[col]..kkt.colptr[col + 1] - 1 {
+                let k = p - kkt.colptr[n] - c;
+                s += kkt.dval[k] * v[kkt.rowval[p]];
+            }
+            w[c] = s;
+            if active[c] {
+                lmax = lmax.max(v[col].abs());
+            } else {
+                wmax = wmax.max(s.abs());
+            }
+        }
+        let tol_w = 1e-10 * wmax.max(1e-300);
+        let tol_l = 1e-10 * lmax.max(qmax);
+        // Violations: active with a negative multiplier (λ = −ν), inactive with a negative mass.
+        let mut n_inf = 0;
+            for c in 0..m {
+            if pb.zero[c] {
+                continue;
+            }
+            let bad = if active[c] { -v[n + c] < -tol_l } else { w[c] < -tol_w };
+            if bad {
+                n_inf += 1;
+            }
+        }
+        if n_inf == 0 {
+            if res > 1e-7 * qmax {
+                return Ok(None);
+            }
+            let cell_ij = cell_coords(pb.rows.n_h);
+            debug_assert_eq!(cell_ij.len(), n_q);
+            let masses: Vec<f64> =
+                (0..m).map(|c| if active[c] { 0.0 } else { (w[c] * pb.scale).max(0.0) }).collect();
+            return Ok(Some(Solution { masses, offset: v[n_q] * pb.scale + pb.mu, iterations: step }));
+        }
+        if n_inf < best_inf {
+            best_inf = n_inf;
+            stall = 0;
+        } else {
+            stall += 1;
+            if stall > STALL_STEPS {
+                // Cycling (H is not an M-matrix): the interior point settles it.
+                return Ok(None);
+            }
+        }
+        for c in 0..m {
+            if pb.zero[c] {
+                continue;
+            }
+            let flip = if active[c] { -v[n + c] < -tol_l } else { w[c] < -tol_w };
+            if flip {
+                active[c] = !active[c];
+                kkt.set(c, active[c], eps);
+            }
+        }
+    }
+    Ok(None)
+}
+
