@@ -263,8 +263,6 @@ pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> R
             if res > 1e-7 * qmax {
                 return Ok(None);
             }
-            let cell_ij = cell_coords(pb.rows.n_h);
-            debug_assert_eq!(cell_ij.len(), n_q);
             let masses: Vec<f64> =
                 (0..m).map(|c| if active[c] { 0.0 } else { (w[c] * pb.scale).max(0.0) }).collect();
             return Ok(Some(Solution { masses, offset: v[n_q] * pb.scale + pb.mu, iterations: step }));

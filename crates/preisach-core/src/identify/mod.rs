@@ -222,7 +222,9 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
     let pb = Problem { rows: &rows, mu, scale, zero: &zero, reg: opts.reg };
     let n_free = zero.iter().filter(|z| !**z).count();
     let solver = match opts.solver {
-        Solver::Auto if n_free <= ACTIVE_AUTO_MAX => Solver::Active,
+        // Interpolated rows make the active-set method cycle (it would give up after
+        // wasted factorizations), so those go to the interior point.
+        Solver::Auto if n_free <= ACTIVE_AUTO_MAX && !opts.interpolated => Solver::Active,
         Solver::Auto => Solver::Structured,
         s => s,
     };
