@@ -87,7 +87,8 @@ def _say(progress: bool, msg: str) -> None:
 def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
              baseline: Optional[Union[str, Path, Chain]] = None,
              candidates: Sequence[str] = CANDIDATES + ("discretization",), min_shrink: float = 0.10,
-             fit_rate_hz: float = 25e3, progress: bool = True, workers: Optional[int] = None) -> GapReport:
+             fit_rate_hz: float = 25e3, progress: bool = True, workers: Optional[int] = None,
+             search_rate_hz: float = 12.5e3) -> GapReport:
     """Diagnose the gap between the baseline model and the measurements.
 
     Parameters
@@ -105,14 +106,23 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
         An effect is detected when adding it shrinks the holdout RMSE of the current
         chain by at least this fraction.
     fit_rate_hz : float
-        Augmented chains are fitted on the training record point-decimated to about this
-        rate (the effects of interest lie below 2 kHz); scoring uses full-rate holdouts.
+        The augmented chain found is finally refitted on the training record
+        point-decimated to about this rate (the effects of interest lie below 2 kHz);
+        scoring uses full-rate holdouts.
+    search_rate_hz : float
+        Candidate chains (the greedy search) are fitted on the training record decimated
+        to about this rate (a mass fit costs about half as much as at 25 kHz); the delay
+        and low-pass of the chain found are then profiled again at ``fit_rate_hz``.
     workers : int, optional
         Candidate fits run in this many threads (default: up to 2, the CPUs available).
 
     Returns a :class:`GapReport`.
     """
     t_start = time.perf_counter()
+
+    def say(msg: str) -> None:
+        _say(progress, f"[{time.perf_counter() - t_start:5.1f} s] {msg}")
+
     if workers is None:
         workers = min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
     if isinstance(holdouts, (str, Path, dict)) or (isinstance(holdouts, tuple) and len(holdouts) == 3
@@ -127,7 +137,7 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
     hos = [_load(h, f"holdout {i + 1}") for i, h in enumerate(holdouts)]
     if _reversals(tr.u) < 2:
         raise ValueError(f"{tr.name}: the input has no reversals (a monotone input cannot identify hysteresis)")
-    _say(progress, f"baseline fit on {tr.name} ({tr.u.size} samples, n_h={n_h})")
+    say(f"baseline fit on {tr.name} ({tr.u.size} samples, n_h={n_h})")
 
     # The baseline, exactly as `preisach identify` makes it (or the given chain).
 
@@ -193,10 +203,13 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
     # effect parameters (creep most) that compensate the flat output beyond the range.
     u_lo, u_hi = float(np.min(tr.u)), float(np.max(tr.u))
     pad = 0.05 * (u_hi - u_lo)
-    fitter = ChainFitter(fit_rec, n_h, (u_lo - pad, u_hi + pad))
-    ref = fitter.fit(base_effects, None, iters=2 if base_effects else 0)
+    fine = ChainFitter(fit_rec, n_h, (u_lo - pad, u_hi + pad))
+    sstride = max(stride, int(round(1.0 / (tr.dt * min(search_rate_hz, fit_rate_hz)))))
+    search_rec = tr.decimated(sstride)
+    fitter = ChainFitter(search_rec, n_h, (u_lo - pad, u_hi + pad)) if sstride != stride else fine
+    ref = fine.fit(base_effects, None, iters=2 if base_effects else 0)
     ref_score = score(ref)
-    _say(progress, f"reference (interpolated) holdout RMSE {ref_score:.4g} (baseline {hold_before:.4g})")
+    say(f"reference (interpolated) holdout RMSE {ref_score:.4g} (baseline {hold_before:.4g})")
 
     # Noise floor and where.
     floors = [noise_floor(r.y - ref.predict(r)) for r in recs]
@@ -207,6 +220,7 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
     for r in recs:
         h = ref.predict(r)
         sig[r.name] = signatures(r.t, r.u, h, r.y - h, r.dt)
+    say(f"where: noise floor {floor:.3g}, residual localized on {len(recs)} records")
 
     # Which and how far: greedy forward selection scored on the holdouts.
     cur, cur_score = ref, ref_score
@@ -216,17 +230,45 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
     dyn = [c for c in candidates if c in CANDIDATES and c not in base_effects]
     for rnd in range(3):
         if cur_score <= 1.2 * floor:
-            _say(progress, "residual at the noise floor; stopping")
+            say("residual at the noise floor; stopping")
             break
         results = {}
+        todo = [c for c in dyn if c not in accepted]
+        if rnd >= 2:
+            # From the third round on, a candidate that made the chain worse in the round
+            # before (with the first effect already in) is not refitted: one more accepted
+            # effect does not unmask it (masking by the first effect is what round 2 is for).
+            skip = [c for c in todo if c in tried and tried[c]["round"] == rnd and tried[c]["score"] <= 0]
+            for c in skip:
+                say(f"round {rnd + 1}: {c} skipped (it worsened the chain in round {rnd})")
+            todo = [c for c in todo if c not in skip]
+        if not todo:
+            break
+        if len([c for c in accepted if c != "discretization"]) > 1:
+            # Polish the accepted chain (all kept effects refitted jointly with the masses,
+            # then each effect's main scalar profiled) so this round credits a new effect
+            # only with its own improvement, not with further convergence of the effects
+            # kept. Only when there is a candidate left to try (the chain found is refitted
+            # at the end anyway).
+            pol = fitter.fit(cur.effects, None, iters=1, start=cur.model)
+            eff, model = dict(pol.effects), pol.model
+            for c in accepted:
+                eff, model = fitter.profile(c, eff, model, narrow=True)
+            pol = FitState(model, eff)
+            ps, pparts = score_parts(pol)
+            say(f"round {rnd + 1}: polished {' + '.join(accepted)}: holdout RMSE {ps:.4g} (was {cur_score:.4g})")
+            if ps < cur_score:
+                cur, cur_score, cur_parts = pol, ps, pparts
 
         def one(c: str, cur: FitState = cur) -> tuple[str, FitState, float, np.ndarray, float]:
             t0 = time.perf_counter()
-            st = fitter.clone().fit(cur.effects, c, iters=2, start=cur.model, only_new=True)
+            # A mode is searched at the fitting rate: in the coarse record the folded
+            # noise and step harmonics bury a well-damped peak.
+            st = (fine if c == "vibration" else fitter).clone().fit(cur.effects, c, iters=2, start=cur.model,
+                                                                       only_new=True)
             sc, parts = score_parts(st)
             return c, st, sc, parts, time.perf_counter() - t0
 
-        todo = [c for c in dyn if c not in accepted]
         # Candidates are independent: two at a time (the core and NumPy's large-array
         # kernels release the GIL). The slow ones first, so the pool stays busy.
         todo.sort(key=lambda c: c not in ("delay", "lowpass", "creep", "drift"))
@@ -234,7 +276,7 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
             warnings.simplefilter("ignore", PreisachWarning)
             for c, st, sc, parts, el in ex.map(lambda c: one(c), todo):
                 results[c] = (st, sc, parts)
-                _say(progress, f"round {rnd + 1}: + {c:10s} holdout RMSE {sc:.4g} ({el:.1f} s)")
+                say(f"round {rnd + 1}: + {c:10s} holdout RMSE {sc:.4g} ({el:.1f} s)")
         results = {c: results[c] for c in dyn if c in results}
         if not results:
             break
@@ -264,7 +306,7 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
                 best = c
                 break
             tried[c]["refused"] = why
-            _say(progress, f"round {rnd + 1}: {c} refused ({why})")
+            say(f"round {rnd + 1}: {c} refused ({why})")
         if best is None and rnd == 0 and len(results) > 1:
             # Look-ahead for a masked pair: a slow effect (drift, creep) fitted on the
             # training record is biased by an unmodelled fast one, and the fast one alone
@@ -278,7 +320,7 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
                         continue
                     st2 = fitter.fit(results[f1][0].effects, slow, iters=2, start=results[f1][0].model, only_new=True)
                     sc2, parts2 = score_parts(st2)
-                    _say(progress, f"round 1: + {f1} + {slow} holdout RMSE {sc2:.4g}")
+                    say(f"round 1: + {f1} + {slow} holdout RMSE {sc2:.4g}")
                     g2 = (cur_score - sc2) / cur_score if cur_score > 0 else 0.0
                     g1 = (results[f1][1] - sc2) / results[f1][1] if results[f1][1] > 0 else 0.0
                     if g2 >= min_shrink and g1 >= min_shrink and cur_score - sc2 >= 0.5 * floor \
@@ -298,26 +340,26 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
                 # Fitted with it as a pair (a mode whose ringing needed a delay).
                 accepted.append(x)
                 tried[x] = dict(tried[best], score=tried.get(x, {}).get("score", tried[best]["score"]))
-        # Polish the accepted chain (all kept effects refitted jointly with the masses, then
-        # each effect's main scalar profiled) so the next round credits a new effect only
-        # with its own improvement, not with further convergence of the effects kept.
-        if len(accepted) > 1:
-            pol = fitter.fit(cur.effects, None, iters=2, start=cur.model)
-            eff, model = dict(pol.effects), pol.model
-            for c in accepted:
-                eff, model = fitter.profile(c, eff, model)
-            pol = FitState(model, eff)
-            ps, pparts = score_parts(pol)
-            if ps < cur_score:
-                cur, cur_score, cur_parts = pol, ps, pparts
+    # The chain found, refitted at the fitting rate: masses, then the delay's and the
+    # low-pass's profiles (narrow: the search placed them already).
+    if fine is not fitter and any(c in ("delay", "lowpass") for c in cur.effects if c not in base_effects):
+        eff, model = dict(cur.effects), fine.masses(cur.effects, cur.model)
+        for c in accepted:
+            if c in ("delay", "lowpass"):
+                eff, model = fine.profile(c, eff, model, narrow=True)
+        pol = FitState(model, eff)
+        ps, pparts = score_parts(pol)
+        say(f"refit at {1 / fit_rec.dt:.0f} Hz: holdout RMSE {ps:.4g} (was {cur_score:.4g})")
+        if ps < cur_score:
+            cur, cur_score, cur_parts = pol, ps, pparts
     # Discretization: a finer grid (with the effects found).
     if "discretization" in candidates:
         nh2 = min(2 * n_h, max(n_h, _reversals(tr.u) // 2), 120)
         if nh2 > n_h:
             t0 = time.perf_counter()
-            st = FitState(fitter.masses(cur.effects, cur.model, n_h=nh2), dict(cur.effects))
+            st = FitState(fine.masses(cur.effects, cur.model, n_h=nh2), dict(cur.effects))
             sc, parts = score_parts(st)
-            _say(progress, f"+ discretization (n_h={nh2}) holdout RMSE {sc:.4g} ({time.perf_counter() - t0:.1f} s)")
+            say(f"+ discretization (n_h={nh2}) holdout RMSE {sc:.4g} ({time.perf_counter() - t0:.1f} s)")
             g = (cur_score - sc) / cur_score if cur_score > 0 else 0.0
             tried["discretization"] = {"state": st, "rmse_after": sc, "rmse_current": cur_score, "score": g,
                                        "round": len(accepted) + 1, "n_h": nh2}
@@ -337,7 +379,10 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
         if c == "discretization":
             params: dict[str, Any] = {"n_h_suggested": d["n_h"]}
         else:
-            params = {k: v for k, v in export_state(d["state"]).effects[c].items() if not k.startswith("_")}
+            # A detected effect's parameters are those of the augmented chain (refitted
+            # after it was accepted); a refused one's those of its own candidate fit.
+            src = final if c in accepted and c in final.effects else export_state(d["state"])
+            params = {k: v for k, v in src.effects[c].items() if not k.startswith("_")}
         effects_out.append({
             "name": c, "detected": c in accepted, "score": float(d["score"]),
             "evidence": evidence_text(c, sig, tr.name, [h.name for h in hos], floor, d),
@@ -353,7 +398,8 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
                   "reference_interpolated_holdout_rmse": ref_score,
                   "effects": list(base_effects)},
         where=where,
-        split={"fit": f"{tr.name} only ({fit_rec.u.size} samples after point decimation by {stride})",
+        split={"fit": f"{tr.name} only (candidates: {search_rec.u.size} samples after point decimation by "
+                      f"{sstride}; the chain found: {fit_rec.u.size} samples, decimation by {stride})",
                "score": [h.name for h in hos],
                "parts": [f"{h.name} {half} half" for h in hos for half in ("first", "second")],
                "note": "masses and effect parameters are fitted on the training record only; every chain "
@@ -367,7 +413,7 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
         seconds=time.perf_counter() - t_start,
         chain=aug, baseline_model=base_model, records=recs, base_residuals=base_res,
     )
-    _say(progress, f"done in {report.seconds:.1f} s: dominant effect {report.dominant_effect}")
+    say(f"done in {report.seconds:.1f} s: dominant effect {report.dominant_effect}")
     return report
 
 
