@@ -227,6 +227,7 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
     cur_parts = score_parts(ref)[1]
     tried: dict[str, dict[str, Any]] = {}
     accepted: list[str] = []
+    coarse_fitted: set[str] = set()
     dyn = [c for c in candidates if c in CANDIDATES and c not in base_effects]
     for rnd in range(3):
         if cur_score <= 1.2 * floor:
@@ -326,6 +327,8 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
                     if g2 >= min_shrink and g1 >= min_shrink and cur_score - sc2 >= 0.5 * floor \
                             and not trivial(f1, st2.effects[f1], floor) and not trivial(slow, st2.effects[slow], floor):
                         accepted.append(f1)
+                        if fitter is not fine and f1 != "vibration":
+                            coarse_fitted.add(f1)
                         tried[slow] = {"state": st2, "rmse_after": sc2, "rmse_current": results[f1][1],
                                        "score": g1, "round": 2}
                         results = {slow: (st2, sc2, parts2)}
@@ -334,7 +337,14 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
         if best is None:
             break
         accepted.append(best)
+        if fitter is not fine and best != "vibration":
+            coarse_fitted.add(best)
         cur, cur_score, cur_parts = results[best]
+        if best == "vibration":
+            # A lightly damped mode in the chain needs the fitting rate from here on (its
+            # ringing after the coarse record's steps is modelled worse, so every further
+            # candidate would look worse than the chain it extends).
+            fitter = fine
         for x in cur.effects:
             if x not in accepted and x not in base_effects:
                 # Fitted with it as a pair (a mode whose ringing needed a delay).
@@ -342,10 +352,12 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
                 tried[x] = dict(tried[best], score=tried.get(x, {}).get("score", tried[best]["score"]))
     # The chain found, refitted at the fitting rate: masses, then the delay's and the
     # low-pass's profiles (narrow: the search placed them already).
-    if fine is not fitter and any(c in ("delay", "lowpass") for c in cur.effects if c not in base_effects):
+    if any(c in coarse_fitted for c in cur.effects if c in ("delay", "lowpass") and c not in base_effects):
         eff, model = dict(cur.effects), fine.masses(cur.effects, cur.model)
         for c in accepted:
-            if c in ("delay", "lowpass"):
+            if c == "lowpass" and c in coarse_fitted and int(eff["lowpass"]["order"]) in (1, 2):
+                eff, model = fine.profile_lowpass_orders(eff, model)
+            elif c == "delay" and c in coarse_fitted:
                 eff, model = fine.profile(c, eff, model, narrow=True)
         pol = FitState(model, eff)
         ps, pparts = score_parts(pol)

@@ -312,6 +312,7 @@ class ChainFitter:
         self._rowls_lock = threading.Lock()
         self.last_gain = 0.0
         self.last_mode_delay = 0.0
+        self.last_profile_mse = float("nan")
 
     def clone(self) -> "ChainFitter":
         """A fitter on the same record with its own scratch state (one per thread when
@@ -599,10 +600,29 @@ class ChainFitter:
             cache[x] = (err, m)
             return err
 
-        x, _ = _parabolic_search(f, x0, lo, hi, refine=1 if narrow else 3)
+        x, fx = _parabolic_search(f, x0, lo, hi, refine=1 if narrow else 3, expand=2 if narrow else 3)
+        self.last_profile_mse = fx
         e = dict(eff)
         e[name] = setp(p0, x)
         return e, cache[x][1]
+
+    def profile_lowpass_orders(self, eff: dict[str, dict[str, Any]],
+                               model: PreisachModel) -> tuple[dict[str, dict[str, Any]], PreisachModel]:
+        """Narrow profile of the low-pass for order 1 and order 2 (started at the cutoff with
+        the same low-frequency group delay, ``sqrt(2) / (2 pi fc)`` for order 2), keeping the
+        order with the lower training error (the coarse search may pick the wrong one: their
+        difference lies in the roll-off above the cutoff)."""
+        p = eff["lowpass"]
+        best = None
+        for order in (1, 2):
+            fc = p["cutoff_hz"] * (math.sqrt(2.0) ** (order - int(p["order"])))
+            e0 = dict(eff)
+            e0["lowpass"] = {"cutoff_hz": float(fc), "order": order}
+            e1, m1 = self.profile("lowpass", e0, model, narrow=True)
+            if best is None or self.last_profile_mse < best[0]:
+                best = (self.last_profile_mse, e1, m1)
+        assert best is not None
+        return best[1], best[2]
 
     # -- the alternation -----------------------------------------------------------
     def fit(self, effects: dict[str, dict[str, Any]], new: Optional[str] = None, iters: int = 4,
