@@ -7,7 +7,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 __version__: str
-__all__ = ["__version__", "Model", "Stream", "fit", "regression_rows", "invert", "InverseStream", "Chain", "run_loop"]
+__all__ = ["__version__", "Model", "Stream", "fit", "fit_behind", "Behind", "regression_rows", "invert", "InverseStream", "Chain", "run_loop"]
 
 # --- core (model, stream, identification) ---
 @final
@@ -44,6 +44,34 @@ def fit(
     solver: str = "auto",
     interpolated: bool = False,
 ) -> tuple[Model, dict[str, Any]]: ...
+def fit_behind(
+    u: NDArray[np.float64],
+    z: NDArray[np.float64],
+    n_h: int,
+    u_range: tuple[float, float],
+    dt: float,
+    blocks: list[tuple[list[tuple[float, float]], list[tuple[float, float]], float]],
+    weights: Optional[NDArray[np.float64]] = None,
+    tol: float = 1e-6,
+    max_iter: int = 200,
+) -> tuple[Model, dict[str, Any]]: ...
+@final
+class Behind:
+    def __new__(cls, u: NDArray[np.float64], n_h: int, u_range: tuple[float, float]) -> Behind: ...
+    def solve(
+        self,
+        z: NDArray[np.float64],
+        dt: float,
+        blocks: list[tuple[list[tuple[float, float]], list[tuple[float, float]], float]],
+        weights: Optional[NDArray[np.float64]] = None,
+        pre: Optional[NDArray[np.float64]] = None,
+        post: Optional[NDArray[np.float64]] = None,
+        tol: float = 1e-4,
+        max_iter: int = 300,
+        warm: bool = True,
+        nnls: bool = False,
+    ) -> dict[str, Any]: ...
+
 def regression_rows(
     u: NDArray[np.float64],
     y: NDArray[np.float64],

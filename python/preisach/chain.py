@@ -227,6 +227,25 @@ def apply_linear(name: str, p: dict[str, Any], x: NDArray[np.float64], dt: float
     raise ValueError(f"not a linear effect: {name}")
 
 
+def partial_fractions(name: str, p: dict[str, Any]) -> tuple[list[complex], list[complex], float]:
+    """The creep, vibration or low-pass block as (poles, residues, direct term), the form
+    :func:`lti` runs (a complex pole stands for its conjugate pair)."""
+    if name == "creep":
+        taus, cs = p["taus_s"], p["amplitudes"]
+        poles = [complex(-1 / tau) for tau, c in zip(taus, cs) if c != 0]
+        res = [complex(c / tau) for tau, c in zip(taus, cs) if c != 0]
+        # "_norm": y = x + sum c (LP[x] - x); otherwise y = x + sum c LP[x].
+        direct = 1.0 - float(sum(cs)) if p.get("_norm") else 1.0
+        return poles, res, direct
+    if name == "vibration":
+        poles, res = mode_pf(p["frequency_hz"], p["damping"])
+        return poles, res, 0.0
+    if name == "lowpass":
+        poles, res = butterworth_pf(p["cutoff_hz"], int(p["order"]))
+        return poles, res, 0.0
+    raise ValueError(f"not a linear block with poles: {name}")
+
+
 def rate_term(p: dict[str, Any], u: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
     """The rate branch ``gain_s * s / (1 + s tau) u``: the input velocity, low-passed."""
     tau = p["tau_s"]

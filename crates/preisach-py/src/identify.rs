@@ -4,6 +4,13 @@
 use std::sync::Arc;
 
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1};
+use std::sync::Mutex;
+
+use numpy::{PyReadonlyArray2, PyUntypedArrayMethods};
+use preisach_core::identify::filtered::{
+    fit_behind as core_fit_behind, Behind as CoreBehind, BehindOptions, Cascade, LtiBlock, Terms,
+};
+use pyo3::exceptions::PyValueError;
 use preisach_core::identify::{build_rows, fit as core_fit, FitOptions, Solver};
 use preisach_core::Grid;
 use pyo3::prelude::*;
@@ -98,8 +105,140 @@ fn regression_rows<'py>(
     })
 }
 
+/// A linear block as partial fractions: (poles, residues, direct), each pole and residue
+/// a (re, im) pair; a complex pole stands for its conjugate pair.
+type BlockArg = (Vec<(f64, f64)>, Vec<(f64, f64)>, f64);
+
+/// Fit the interpolated model's masses behind a cascade of linear blocks (the
+/// diagnoser's augmented chains); returns (Model, report dict).
+#[pyfunction]
+#[pyo3(signature = (u, z, n_h, u_range, dt, blocks, weights=None, tol=1e-6, max_iter=200))]
+#[allow(clippy::too_many_arguments)]
+fn fit_behind<'py>(
+    py: Python<'py>,
+    u: PyReadonlyArray1<'py, f64>,
+    z: PyReadonlyArray1<'py, f64>,
+    n_h: i64,
+    u_range: (f64, f64),
+    dt: f64,
+    blocks: Vec<BlockArg>,
+    weights: Option<PyReadonlyArray1<'py, f64>>,
+    tol: f64,
+    max_iter: usize,
+) -> PyResult<(Model, Bound<'py, PyDict>)> {
+    guard(|| {
+        if n_h < 1 {
+            return Err(to_py(preisach_core::PreisachError::invalid("n_h", format!("must be >= 1, got {n_h}"))));
+        }
+        let (u, z) = (slice("u", &u)?, slice("z", &z)?);
+        let w = match &weights {
+            Some(w) => Some(slice("weights", w)?),
+            None => None,
+        };
+        let blocks: Vec<LtiBlock> =
+            blocks.into_iter().map(|(poles, residues, direct)| LtiBlock { poles, residues, direct }).collect();
+        let opts = BehindOptions { n_h: n_h as usize, u_range, dt, tol, max_iter };
+        let (model, rep) = py.detach(|| core_fit_behind(u, z, w, &blocks, &opts)).map_err(to_py)?;
+        let d = PyDict::new(py);
+        d.set_item("iterations", rep.iterations)?;
+        d.set_item("residual", rep.residual)?;
+        d.set_item("rmse", rep.rmse)?;
+        d.set_item("rmse_unconstrained", rep.rmse_unconstrained)?;
+        d.set_item("solver", rep.projection.solver)?;
+        Ok((Model { inner: Arc::new(model) }, d))
+    })
+}
+
+/// A fit problem on one input (rows and preconditioner built once): fits targets
+/// behind linear blocks, for profiling effect parameters.
+#[pyclass(frozen, module = "preisach._preisach")]
+pub struct Behind {
+    inner: Mutex<CoreBehind>,
+}
+
+fn rows_of<'a>(name: &str, a: &'a Option<PyReadonlyArray2<'_, f64>>) -> PyResult<Vec<&'a [f64]>> {
+    match a {
+        None => Ok(Vec::new()),
+        Some(a) => {
+            let n = a.shape()[1];
+            let s = a.as_slice().map_err(|_| PyValueError::new_err(format!("{name}: array must be C-contiguous float64")))?;
+            Ok(if n == 0 { Vec::new() } else { s.chunks(n).collect() })
+        }
+    }
+}
+
+#[pymethods]
+impl Behind {
+    #[new]
+    fn new(py: Python<'_>, u: PyReadonlyArray1<'_, f64>, n_h: i64, u_range: (f64, f64)) -> PyResult<Self> {
+        guard(|| {
+            if n_h < 1 {
+                return Err(to_py(preisach_core::PreisachError::invalid("n_h", format!("must be >= 1, got {n_h}"))));
+            }
+            let u = slice("u", &u)?;
+            let b = py.detach(|| CoreBehind::new(u, n_h as usize, u_range)).map_err(to_py)?;
+            Ok(Behind { inner: Mutex::new(b) })
+        })
+    }
+
+    /// Unconstrained optimum of the chain fit (and with ``nnls`` the masses >= 0):
+    /// a dict with rmse, iterations, residual, extra (coefficients of pre then post
+    /// columns) and, with ``nnls``, model, rmse_nnls, extra_nnls.
+    #[pyo3(signature = (z, dt, blocks, weights=None, pre=None, post=None, tol=1e-4, max_iter=300, warm=true, nnls=false))]
+    #[allow(clippy::too_many_arguments)]
+    fn solve<'py>(
+        &self,
+        py: Python<'py>,
+        z: PyReadonlyArray1<'py, f64>,
+        dt: f64,
+        blocks: Vec<BlockArg>,
+        weights: Option<PyReadonlyArray1<'py, f64>>,
+        pre: Option<PyReadonlyArray2<'py, f64>>,
+        post: Option<PyReadonlyArray2<'py, f64>>,
+        tol: f64,
+        max_iter: usize,
+        warm: bool,
+        nnls: bool,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        guard(|| {
+            let z = slice("z", &z)?;
+            let w = match &weights {
+                Some(w) => Some(slice("weights", w)?),
+                None => None,
+            };
+            let (pre_rows, post_rows) = (rows_of("pre", &pre)?, rows_of("post", &post)?);
+            let blocks: Vec<LtiBlock> =
+                blocks.into_iter().map(|(poles, residues, direct)| LtiBlock { poles, residues, direct }).collect();
+            let terms = Terms { omega: w, pre: &pre_rows, post: &post_rows };
+            let res = py
+                .detach(|| {
+                    let mut lti = Cascade::new(&blocks, dt)?;
+                    let mut b = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+                    let sol = b.solve(z, &mut lti, &terms, tol, max_iter, warm)?;
+                    let proj = if nnls { Some(b.project(&sol, z, &mut lti, &terms)?) } else { None };
+                    Ok::<_, preisach_core::PreisachError>((sol, proj))
+                })
+                .map_err(to_py)?;
+            let (sol, proj) = res;
+            let d = PyDict::new(py);
+            d.set_item("rmse", sol.rmse)?;
+            d.set_item("iterations", sol.iterations)?;
+            d.set_item("residual", sol.residual)?;
+            d.set_item("extra", sol.extra)?;
+            if let Some((model, coef, rmse, _)) = proj {
+                d.set_item("model", Model { inner: Arc::new(model) })?;
+                d.set_item("rmse_nnls", rmse)?;
+                d.set_item("extra_nnls", coef)?;
+            }
+            Ok(d)
+        })
+    }
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Behind>()?;
     m.add_function(wrap_pyfunction!(fit, m)?)?;
+    m.add_function(wrap_pyfunction!(fit_behind, m)?)?;
     m.add_function(wrap_pyfunction!(regression_rows, m)?)?;
     Ok(())
 }

@@ -20,7 +20,7 @@ from typing import Any, Callable, Optional
 import numpy as np
 from numpy.typing import NDArray
 
-from preisach.chain import ORDER, apply_effects, apply_linear, delay_signal, lti, rate_term
+from preisach.chain import ORDER, apply_effects, apply_linear, delay_signal, lti, partial_fractions, rate_term
 from preisach.model import PreisachModel
 
 #: Candidate effects the diagnoser tries (``discretization`` is handled separately).
@@ -77,6 +77,22 @@ def _rows(u: NDArray[np.float64], cap: int) -> NDArray[np.intp]:
         if turn.size < cap:
             idx = np.union1d(idx, turn)
     return idx
+
+
+def fit_behind(u: NDArray[np.float64], z: NDArray[np.float64], n_h: int, u_range: tuple[float, float], dt: float,
+               blocks: list[tuple[list[complex], list[complex], float]],
+               weights: Optional[NDArray[np.float64]] = None) -> PreisachModel:
+    """Interpolated model whose output, through the linear ``blocks`` (partial fractions,
+    applied in order), fits ``z`` in (weighted) least squares; masses >= 0. Exact where
+    correcting the target with the previous masses and refitting diverges (lightly damped
+    modes); see ``preisach_core::identify::filtered``."""
+    from preisach import _preisach
+
+    bl = [([(p.real, p.imag) for p in poles], [(q.real, q.imag) for q in res], float(d)) for poles, res, d in blocks]
+    w = None if weights is None else np.ascontiguousarray(weights, dtype=np.float64)
+    core, _ = _preisach.fit_behind(np.ascontiguousarray(u, dtype=np.float64), np.ascontiguousarray(z, dtype=np.float64),
+                                   int(n_h), (float(u_range[0]), float(u_range[1])), float(dt), bl, w, 1e-4)
+    return PreisachModel._wrap(core, "interpolated")
 
 
 def fit_masses(u: NDArray[np.float64], y: NDArray[np.float64], n_h: int, u_range: tuple[float, float],
@@ -156,16 +172,6 @@ class RowLS:
         """Mean squared error of the masses alone."""
         by = self._proj(y)
         return (float(np.sum(self.cnt * self._resid(by) ** 2)) + float(y @ y - np.sum(self.cnt * by * by))) / self.u.size
-
-
-def creep_inverse(y: NDArray[np.float64], tau: float, c: float, dt: float) -> NDArray[np.float64]:
-    """Undo the DC-normalized single creep element ``G = 1 - c s tau / (1 + s tau)``:
-    ``G^-1 = (1 + s tau) / (1 + s tau (1 - c))``, i.e.
-    ``x = (y - c LP_{tau (1 - c)}[y]) / (1 - c)`` (stable, first order)."""
-    if c == 0:
-        return y
-    tp = tau * (1 - c)
-    return (y - c * _lp(y, tp, dt)) / (1 - c)
 
 
 def _lp(x: NDArray[np.float64], tau: float, dt: float) -> NDArray[np.float64]:
@@ -330,27 +336,18 @@ class ChainFitter:
             p = effects["drift"]
             z = (z - p["offset"] - p["offset_per_s"] * r.t) / (1 + p["gain_per_s"] * r.t)
         ud = delay_signal(r.u, effects["delay"]["delay_s"], r.dt) if "delay" in effects else r.u
-        cr = effects.get("creep")
-        single = cr is not None and cr.get("_norm") and len(cr["taus_s"]) == 1
-        if single:
-            # Exact: the blocks behind creep are corrected with the previous masses, creep
-            # itself is inverted (a stable first-order lead-lag), the rate branch subtracted.
-            post = {k: v for k, v in effects.items() if k in ("vibration", "lowpass")}
-            if post and prev is not None:
-                x = apply_effects({k: v for k, v in effects.items() if k in ("rate", "creep")}, r.t, ud,
-                                  prev.predict(ud), r.dt)
-                z = z - (apply_effects(post, r.t, ud, x, r.dt) - x)
-            z = creep_inverse(z, cr["taus_s"][0], cr["amplitudes"][0], r.dt)
-            if "rate" in effects:
-                z = z - rate_term(effects["rate"], ud, r.dt)
+        # The linear blocks behind the hysteresis (a delay commutes with it: the masses see
+        # the delayed input); the rate branch passes through them and is subtracted.
+        lin = [k for k in ORDER if k in effects and k in ("creep", "vibration", "lowpass")]
+        if "rate" in effects:
+            rt = rate_term(effects["rate"], ud, r.dt)
+            z = z - apply_effects({k: effects[k] for k in lin}, r.t, ud, rt, r.dt)
+        weights = None
+        if "drift" in effects and effects["drift"]["gain_per_s"] != 0:
+            weights = (1 + effects["drift"]["gain_per_s"] * r.t) ** 2
+        if not lin and weights is None:
             return fit_masses(ud, z, nh, self.u_range, self.cap)
-        lin = {k: v for k, v in effects.items() if k in ("rate", "creep", "vibration", "lowpass")}
-        if lin and prev is not None:
-            h = prev.predict(ud)
-            z = z - (apply_effects(lin, r.t, ud, h, r.dt) - h)
-        elif "rate" in lin:
-            z = z - rate_term(lin["rate"], ud, r.dt)
-        return fit_masses(ud, z, nh, self.u_range, self.cap)
+        return fit_behind(ud, z, nh, self.u_range, r.dt, [partial_fractions(k, effects[k]) for k in lin], weights)
 
     def rowls(self, delay_s: float) -> "RowLS":
         """The (cached) row least-squares helper on the (delayed) training input."""

@@ -3,6 +3,7 @@
 //! reported.
 
 pub mod active;
+pub mod filtered;
 pub mod pg;
 pub mod qp;
 pub mod rows;

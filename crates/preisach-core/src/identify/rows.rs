@@ -266,7 +266,7 @@ fn build_rows_interpolated(grid: &Grid, u: &[f64], y: &[f64]) -> Rows {
 }
 
 /// `out = ca·a + cb·b` for sorted sparse rows (the offset column scales with them).
-fn combine(a: &[(u32, f64)], ca: f64, b: &[(u32, f64)], cb: f64, out: &mut Vec<(u32, f64)>) {
+pub(crate) fn combine(a: &[(u32, f64)], ca: f64, b: &[(u32, f64)], cb: f64, out: &mut Vec<(u32, f64)>) {
     out.clear();
     out.extend(a.iter().map(|&(i, v)| (i, ca * v)));
     out.extend(b.iter().map(|&(i, v)| (i, cb * v)));
@@ -275,7 +275,7 @@ fn combine(a: &[(u32, f64)], ca: f64, b: &[(u32, f64)], cb: f64, out: &mut Vec<(
 
 /// Everett-coordinate coefficients of a state (stored extrema `t`, current input `cur`):
 /// `2 S⁺ − E(n_h, 0)`.
-fn emit_row(t: &[f64], cur: f64, n_h: usize, out: &mut Vec<(u32, f64)>) {
+pub(crate) fn emit_row(t: &[f64], cur: f64, n_h: usize, out: &mut Vec<(u32, f64)>) {
     out.clear();
     let n = t.len();
     let closed = if n % 2 == 1 { (n - 1) / 2 } else { (n - 2) / 2 };

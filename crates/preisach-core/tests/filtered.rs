@@ -1,0 +1,129 @@
+//! Masses fitted behind linear dynamics (`identify::filtered`): the block recursion and
+//! its adjoint, and recovery of known masses through a lightly damped mode.
+mod common;
+
+use common::{random_input, random_model, Rng};
+use preisach_core::identify::filtered::{fit_behind, BehindOptions, Cascade, LtiBlock};
+use preisach_core::identify::{fit, FitOptions, Solver};
+
+/// `w²/(s² + 2ζw s + w²)` as one pole of the conjugate pair with its residue.
+fn mode(f: f64, zeta: f64) -> LtiBlock {
+    let w = 2.0 * std::f64::consts::PI * f;
+    let wd = w * (1.0 - zeta * zeta).sqrt();
+    // r = w² / (2j wd) = −j w² / (2 wd)
+    LtiBlock { poles: vec![(-zeta * w, wd)], residues: vec![(0.0, -w * w / (2.0 * wd))], direct: 0.0 }
+}
+
+fn first_order(tau: f64) -> LtiBlock {
+    LtiBlock { poles: vec![(-1.0 / tau, 0.0)], residues: vec![(1.0 / tau, 0.0)], direct: 0.0 }
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+#[test]
+fn adjoint_of_the_cascade_is_exact() {
+    let mut rng = Rng::new(3);
+    // Creep-like block (direct term plus a slow pole), a mode and a fast low-pass.
+    let creep = LtiBlock { poles: vec![(-20.0, 0.0)], residues: vec![(-0.05 * 20.0, 0.0)], direct: 1.0 };
+    let blocks = [creep, mode(700.0, 0.01), first_order(1.0 / (2.0 * std::f64::consts::PI * 3000.0))];
+    let mut l = Cascade::new(&blocks, 2e-5).unwrap();
+    let n = 5000;
+    let x: Vec<f64> = (0..n).map(|_| rng.range(-1.0, 1.0)).collect();
+    let w: Vec<f64> = (0..n).map(|_| rng.range(-1.0, 1.0)).collect();
+    let (mut lx, mut ltw) = (vec![0.0; n], vec![0.0; n]);
+    l.apply(&x, &mut lx);
+    l.adjoint(&w, &mut ltw);
+    let (a, b) = (dot(&w, &lx), dot(&ltw, &x));
+    assert!((a - b).abs() <= 1e-11 * a.abs().max(1.0), "<w, Lx> = {a}, <L'w, x> = {b}");
+}
+
+#[test]
+fn first_order_block_is_exact_for_a_ramp_from_rest() {
+    // 1/(1 + s tau) driven by x(t) = t from rest: y(t) = t − tau (1 − e^{−t/tau}); the
+    // hold is first order, so a ramp is reproduced exactly.
+    let (tau, dt) = (3e-3, 1e-4);
+    let mut l = Cascade::new(&[first_order(tau)], dt).unwrap();
+    let n = 400;
+    let x: Vec<f64> = (0..n).map(|k| k as f64 * dt).collect();
+    let mut y = vec![0.0; n];
+    l.apply(&x, &mut y);
+    for (k, &v) in y.iter().enumerate() {
+        let t = k as f64 * dt;
+        let exact = t - tau * (1.0 - (-t / tau).exp());
+        assert!((v - exact).abs() < 1e-15 + 1e-11 * exact.abs(), "k={k}: {v} vs {exact}");
+    }
+}
+
+#[test]
+fn mode_block_starts_at_rest_and_has_unit_dc_gain() {
+    let mut l = Cascade::new(&[mode(500.0, 0.05)], 1e-5).unwrap();
+    let x = vec![2.5; 20_000];
+    let mut y = vec![0.0; x.len()];
+    l.apply(&x, &mut y);
+    assert!(y.iter().all(|v| (v - 2.5).abs() < 1e-12), "a constant input from rest stays constant");
+}
+
+#[test]
+fn fit_behind_recovers_masses_through_a_lightly_damped_mode() {
+    let mut rng = Rng::new(11);
+    let n_h = 8;
+    let truth = random_model(&mut rng, n_h);
+    let u = random_input(&mut rng, 6000);
+    let mut h = vec![0.0; u.len()];
+    truth.run_interpolated(&mut truth.interp_memory(), &u, &mut h);
+    let dt = 1e-4;
+    let blocks = [mode(300.0, 0.02)];
+    let mut z = vec![0.0; u.len()];
+    Cascade::new(&blocks, dt).unwrap().apply(&h, &mut z);
+    let opts = BehindOptions { n_h, u_range: (-1.0, 2.0), dt, tol: 1e-12, max_iter: 500 };
+    let (m, rep) = fit_behind(&u, &z, None, &blocks, &opts).unwrap();
+    let span = z.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+    assert!(rep.rmse < 1e-8 * span, "chain rmse {} (iterations {})", rep.rmse, rep.iterations);
+    let wmax = truth.masses().iter().fold(0.0f64, |a, v| a.max(*v));
+    for (a, b) in m.masses().iter().zip(truth.masses()) {
+        assert!((a - b).abs() < 1e-6 * wmax, "mass {a} vs {b}");
+    }
+    assert!((m.offset() - truth.offset()).abs() < 1e-6 * wmax);
+
+    // Ignoring the mode (the plain fit of z) is far off: the test can fail.
+    let fo = FitOptions { n_h, u_range: Some((-1.0, 2.0)), reg: 0.0, solver: Solver::Auto, interpolated: true };
+    let (plain, _) = fit(&u, &z, &fo).unwrap();
+    let err = plain.masses().iter().zip(truth.masses()).fold(0.0f64, |a, (x, y)| a.max((x - y).abs()));
+    assert!(err > 1e-3 * wmax, "plain fit error {err}");
+}
+
+#[test]
+fn fit_behind_without_blocks_is_the_plain_fit() {
+    let mut rng = Rng::new(5);
+    let truth = random_model(&mut rng, 6);
+    let u = random_input(&mut rng, 3000);
+    let mut y = vec![0.0; u.len()];
+    truth.run_interpolated(&mut truth.interp_memory(), &u, &mut y);
+    for v in y.iter_mut() {
+        *v += 0.05 * rng.range(-1.0, 1.0);
+    }
+    let opts = BehindOptions { n_h: 6, u_range: (-1.0, 2.0), dt: 1e-3, tol: 1e-12, max_iter: 200 };
+    let (m, rep) = fit_behind(&u, &y, None, &[], &opts).unwrap();
+    let fo = FitOptions { n_h: 6, u_range: Some((-1.0, 2.0)), reg: 0.0, solver: Solver::Auto, interpolated: true };
+    let (_, plain) = fit(&u, &y, &fo).unwrap();
+    assert!((rep.rmse - plain.rmse).abs() <= 1e-9 * plain.rmse, "{} vs {}", rep.rmse, plain.rmse);
+    assert!(m.masses().iter().all(|&w| w >= 0.0));
+}
+
+#[test]
+fn fit_behind_rejects_bad_input_by_name() {
+    let u = vec![0.0, 1.0, 0.5, 0.8];
+    let opts = BehindOptions { n_h: 2, u_range: (0.0, 1.0), dt: 1e-3, tol: 1e-8, max_iter: 10 };
+    let unstable = LtiBlock { poles: vec![(10.0, 0.0)], residues: vec![(1.0, 0.0)], direct: 0.0 };
+    let e = fit_behind(&u, &u, None, &[unstable], &opts).unwrap_err().to_string();
+    assert!(e.starts_with("poles:") && e.contains("unstable"), "{e}");
+    let e = fit_behind(&u, &u[..3], None, &[], &opts).unwrap_err().to_string();
+    assert!(e.starts_with("z:") && e.contains("length"), "{e}");
+    let e = fit_behind(&u, &u, Some(&[1.0, -1.0, 1.0, 1.0]), &[], &opts).unwrap_err().to_string();
+    assert!(e.starts_with("weights:") && e.contains("negative"), "{e}");
+    let bad = BehindOptions { dt: 0.0, ..opts };
+    let e = fit_behind(&u, &u, None, &[], &bad).unwrap_err().to_string();
+    assert!(e.starts_with("dt:"), "{e}");
+}
