@@ -4,6 +4,7 @@
 
 pub mod active;
 pub mod filtered;
+mod ldl;
 pub mod pg;
 pub mod qp;
 pub mod rows;
@@ -112,8 +113,8 @@ fn min_max(u: &[f64]) -> (f64, f64) {
     u.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)))
 }
 
-/// Excitation statistics on the quantized levels: (reversals, never switched on,
-/// switched on but never off).
+/// Excitation statistics on the quantized levels (consecutive repeats may be dropped:
+/// they change nothing here): (reversals, never switched on, switched on but never off).
 fn excitation(q: &[u32], n_h: usize) -> (usize, usize, usize) {
     let mut reversals = 0;
     let mut dir = 0i8;
@@ -152,6 +153,32 @@ fn excitation(q: &[u32], n_h: usize) -> (usize, usize, usize) {
         }
     }
     (reversals, never, once)
+}
+
+/// Training sum of squared residuals of a stepwise model from its merged rows (exact:
+/// a row's samples share one prediction, so each contributes its count times the squared
+/// residual at the row mean, plus the within-row scatter), without re-running the model
+/// over every sample. (Interpolated pseudo-rows hold the scatter only as a difference of
+/// large sums, so those are re-predicted instead.)
+fn stepwise_sse(rows: &Rows, model: &PreisachModel) -> f64 {
+    let n_h = rows.n_h;
+    let ev = model.everett();
+    // Everett value of each variable index E(a, b), a > b, packed like `everett_var`.
+    let mut e = Vec::with_capacity(rows.n_vars());
+    for a in 1..=n_h {
+        for b in 0..a {
+            e.push(ev.at(a as u32, b as u32));
+        }
+    }
+    let mut sse = rows.within_ss;
+    for r in 0..rows.n_rows() {
+        let (idx, val) = rows.row(r);
+        let p: f64 = idx.iter().zip(val).map(|(&k, &v)| v * e[k as usize]).sum::<f64>()
+            + rows.offset_coef[r] * model.offset();
+        let d = p - rows.target[r];
+        sse += rows.weight[r] * d * d;
+    }
+    sse
 }
 
 /// Identify a model from input `u` and measured output `y`.
@@ -199,13 +226,28 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
     }
     let (u_min, u_max) = min_max(u);
 
-    let q: Vec<u32> = u.iter().map(|&x| grid.quantize(x)).collect();
-    let (reversals, never, once) = excitation(&q, n_h);
+    let t_rows = std::time::Instant::now();
+    let rows = build_rows(&grid, u, y, opts.interpolated);
+    let time_rows_s = t_rows.elapsed().as_secs_f64();
+    // The levels the relays saw, repeats dropped (the stepwise rows record them).
+    let mut seen = Vec::new();
+    let levels: &[u32] = if opts.interpolated {
+        for &x in u {
+            let k = grid.quantize(x);
+            if seen.last() != Some(&k) {
+                seen.push(k);
+            }
+        }
+        &seen
+    } else {
+        &rows.levels
+    };
+    let (reversals, never, once) = excitation(levels, n_h);
     // Cells never switched on: their column equals the offset's, so they are fixed to 0.
     let top = if opts.interpolated {
         grid.position(u_max).ceil() as usize
     } else {
-        *q.iter().max().unwrap() as usize
+        *levels.iter().max().unwrap() as usize
     };
     let mut zero = vec![false; grid.n_q()];
     for i in 0..n_h {
@@ -214,9 +256,6 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
         }
     }
 
-    let t_rows = std::time::Instant::now();
-    let rows = build_rows(&grid, u, y, opts.interpolated);
-    let time_rows_s = t_rows.elapsed().as_secs_f64();
     let mu = y.iter().sum::<f64>() / y.len() as f64;
     let var = y.iter().map(|v| (v - mu) * (v - mu)).sum::<f64>() / y.len() as f64;
     let scale = if var > 0.0 { var.sqrt() } else { mu.abs().max(1.0) };
@@ -266,13 +305,13 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
     let time_solve_s = t_solve.elapsed().as_secs_f64();
     let model = PreisachModel::new(grid.clone(), sol.masses, sol.offset)?;
 
-    let mut pred = vec![0.0; u.len()];
-    if opts.interpolated {
+    let sse = if opts.interpolated {
+        let mut pred = vec![0.0; u.len()];
         model.run_interpolated(&mut model.interp_memory(), u, &mut pred);
+        pred.iter().zip(y).map(|(p, t)| (p - t) * (p - t)).sum()
     } else {
-        model.run(&mut model.memory(), u, &mut pred);
-    }
-    let sse: f64 = pred.iter().zip(y).map(|(p, t)| (p - t) * (p - t)).sum();
+        stepwise_sse(&rows, &model)
+    };
 
     let mut warnings = Vec::new();
     if let Some(it) = unconverged {

@@ -38,6 +38,9 @@ pub struct Rows {
     /// Sum of squared deviations from the row means (unexplainable by any model).
     pub within_ss: f64,
     pub n_samples: usize,
+    /// The quantized input levels with consecutive repeats dropped (stepwise rows only;
+    /// empty for interpolated ones): what the relays saw, for the excitation report.
+    pub levels: Vec<u32>,
 }
 
 impl Rows {
@@ -53,6 +56,7 @@ impl Rows {
             target: Vec::new(),
             within_ss: 0.0,
             n_samples,
+            levels: Vec::new(),
         }
     }
 
@@ -130,8 +134,10 @@ pub fn build_rows(grid: &Grid, u: &[f64], y: &[f64], interpolated: bool) -> Rows
     let mut prev_p = f64::NAN;
     let mut row = 0usize;
     for (&x, &yt) in u.iter().zip(y) {
-        let p = grid.quantize(x) as f64;
+        let level = grid.quantize(x);
+        let p = level as f64;
         if p != prev_p {
+            rows.levels.push(level);
             mem.apply(p, &no_e);
             prev_p = p;
             key.clear();
