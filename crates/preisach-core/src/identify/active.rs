@@ -18,7 +18,9 @@
 //! fill-reducing ordering of the full pattern serves every step ([`super::ldl`]): each
 //! step factors only the coupled (active) constraints' fill under the induced order, a
 //! third of the full pattern's work in the benchmark, then refines iteratively against
-//! the unregularized matrix.
+//! the unregularized matrix. A step that switches only a few constraints borders the
+//! last factorization instead ([`Border`]: one triangular solve per switched
+//! constraint, about half of one when solved four at a time).
 //!
 //! From "all masses free" the method needs a dozen or more factorizations on noisy
 //! sweeps (14 at n_h = 40 in the benchmark). Without a caller's guess it therefore
@@ -39,6 +41,11 @@ use super::qp::{cell_coords, everett_objective, Problem, Solution};
 use super::rows::mass_from_everett;
 use crate::error::Result;
 
+/// Bordering instead of refactoring (see [`Border`]): at most this many changed
+/// constraints, and new ones only while their solves cost less than this share of a
+/// refactorization.
+const BORDER_MAX: usize = 48;
+const BORDER_SHARE: f64 = 0.5;
 /// Steps without fewer violated conditions before giving up.
 const STALL_STEPS: u32 = 3;
 /// Refinement passes per step (each is one pair of triangular solves).
@@ -264,15 +271,34 @@ pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> R
     let mut w = vec![0.0; m];
     let mut best_inf = usize::MAX;
     let mut stall = 0;
+    // Active set of the matrix last factored (None: none yet for the active-set steps).
+    let mut base: Option<Vec<bool>> = None;
+    let mut border = Border::default();
     for step in 1..=max_steps {
-        // Only the active constraints' rows: an inactive one is `−ν_c = 0`, decoupled.
-        coupled[n..].copy_from_slice(&active);
-        kkt.regularized(&mut kval);
-        if !fact.factor(&kval, Some(&coupled)) {
-            return Ok(None);
+        // Few constraints changed since the last factorization: border it instead.
+        let changed: Vec<usize> = match &base {
+            Some(b0) => (0..m).filter(|&c| b0[c] != active[c]).collect(),
+            None => Vec::new(),
+        };
+        // New border columns are solved four at a time, at about two solves' cost.
+        let new = changed.iter().filter(|&&c| !border.has(c)).count();
+        let cost = 2.0 * new.div_ceil(4) as f64;
+        if base.is_some() && changed.len() <= BORDER_MAX && cost < BORDER_SHARE * fact.refactor_in_solves() {
+            if !border.update(&changed, &active, &kkt, &mut fact, eps) {
+                return Ok(None);
+            }
+        } else {
+            // Only the active constraints' rows: an inactive one is `−ν_c = 0`, decoupled.
+            coupled[n..].copy_from_slice(&active);
+            kkt.regularized(&mut kval);
+            if !fact.factor(&kval, Some(&coupled)) {
+                return Ok(None);
+            }
+            base = Some(active.clone());
+            border.clear();
         }
         v.copy_from_slice(&b);
-        fact.solve(&mut v);
+        border.solve(&kkt, &mut fact, &mut v);
         // Iterative refinement against the unregularized matrix. Where that matrix is
         // singular (Everett values no row observes, masses free), refinement need not
         // contract: keep the best iterate and stop as soon as the residual grows.
@@ -296,7 +322,7 @@ pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> R
             if res <= 1e-13 * qmax || pass == REFINE {
                 break;
             }
-            fact.solve(&mut r);
+            border.solve(&kkt, &mut fact, &mut r);
             v.iter_mut().zip(&r).for_each(|(x, d)| *x += d);
         }
         if !res.is_finite() {
@@ -364,6 +390,151 @@ pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> R
     Ok(None)
 }
 
+/// Solves with the KKT matrix of the current active set from the factorization `K₀` of an
+/// earlier one. Each constraint whose state changed borders `K₀` with one row and column
+/// (a constraint switched on: its row `D_c x − ε μ = r_c` with the new multiplier μ; one
+/// switched off: `ν_c = 0` on the factored multiplier, whose own row is then absorbed,
+/// the true multiplier being decoupled), and the bordered system is solved through the
+/// small dense Schur complement `S = C − Bᵀ K₀⁻¹ B`: one triangular solve per new
+/// constraint instead of a refactorization when a step changes only a few.
+#[derive(Default)]
+struct Border {
+    /// Changed constraint, switched on (else off), `K₀⁻¹ B` column.
+    cols: Vec<(usize, bool, Vec<f64>)>,
+    /// LU factors of S (row-major) and the row permutation.
+    lu: Vec<f64>,
+    piv: Vec<usize>,
+    t: Vec<f64>,
+}
+
+impl Border {
+    fn has(&self, c: usize) -> bool {
+        self.cols.iter().any(|e| e.0 == c)
+    }
+
+    fn clear(&mut self) {
+        self.cols.clear();
+    }
+
+    /// `Bᵀ_j v` for border column j.
+    fn bt(kkt: &Kkt, c: usize, on: bool, v: &[f64]) -> f64 {
+        let col = kkt.n + c;
+        if on {
+            let mut s = 0.0;
+            for p in kkt.colptr[col]..kkt.colptr[col + 1] - 1 {
+                s += kkt.dval[p - kkt.colptr[kkt.n] - c] * v[kkt.rowval[p]];
+            }
+            s
+        } else {
+            v[col]
+        }
+    }
+
+    /// Border the factored matrix with the constraints in `changed` (their states now
+    /// `active`). Returns false if the Schur complement is singular.
+    fn update(&mut self, changed: &[usize], active: &[bool], kkt: &Kkt, fact: &mut Ldl, eps: f64) -> bool {
+        self.cols.retain(|e| changed.contains(&e.0));
+        let dim = kkt.n + kkt.m;
+        let fresh: Vec<usize> = changed.iter().copied().filter(|&c| !self.has(c)).collect();
+        let kn = fresh.len();
+        if kn > 0 {
+            // K₀⁻¹ B for the new columns, all at once.
+            let mut x = vec![0.0; dim * kn];
+            for (j, &c) in fresh.iter().enumerate() {
+                let col = kkt.n + c;
+                if active[c] {
+                    for p in kkt.colptr[col]..kkt.colptr[col + 1] - 1 {
+                        x[kkt.rowval[p] * kn + j] = kkt.dval[p - kkt.colptr[kkt.n] - c];
+                    }
+                } else {
+                    x[col * kn + j] = 1.0;
+                }
+            }
+            fact.solve_many(&mut x, kn);
+            for (j, &c) in fresh.iter().enumerate() {
+                let w: Vec<f64> = (0..dim).map(|i| x[i * kn + j]).collect();
+                self.cols.push((c, active[c], w));
+            }
+        }
+        let k = self.cols.len();
+        self.lu.clear();
+        self.lu.resize(k * k, 0.0);
+        for (i, (ci, oni, _)) in self.cols.iter().enumerate() {
+            for (j, (_, _, wj)) in self.cols.iter().enumerate() {
+                self.lu[i * k + j] = -Self::bt(kkt, *ci, *oni, wj);
+            }
+            if *oni {
+                self.lu[i * k + i] -= eps;
+            }
+        }
+        // LU with partial pivoting.
+        self.piv.clear();
+        self.piv.extend(0..k);
+        for j in 0..k {
+            let p = (j..k).max_by(|&a, &b| self.lu[a * k + j].abs().total_cmp(&self.lu[b * k + j].abs())).unwrap();
+            if self.lu[p * k + j] == 0.0 || !self.lu[p * k + j].is_finite() {
+                return false;
+            }
+            if p != j {
+                for t in 0..k {
+                    self.lu.swap(j * k + t, p * k + t);
+                }
+                self.piv.swap(j, p);
+            }
+            let d = self.lu[j * k + j];
+            for i in j + 1..k {
+                let f = self.lu[i * k + j] / d;
+                self.lu[i * k + j] = f;
+                for t in j + 1..k {
+                    self.lu[i * k + t] -= f * self.lu[j * k + t];
+                }
+            }
+        }
+        true
+    }
+
+    /// Solve in place with the current active set's (regularized) KKT matrix.
+    fn solve(&mut self, kkt: &Kkt, fact: &mut Ldl, x: &mut [f64]) {
+        let k = self.cols.len();
+        if k == 0 {
+            fact.solve(x);
+            return;
+        }
+        // Right-hand sides of the border rows; the factored multipliers of changed
+        // constraints are dummies with right-hand side 0.
+        let n = kkt.n;
+        let g: Vec<f64> = self.cols.iter().map(|&(c, on, _)| if on { x[n + c] } else { 0.0 }).collect();
+        let off: Vec<f64> = self.cols.iter().map(|&(c, _, _)| -x[n + c]).collect();
+        for &(c, _, _) in &self.cols {
+            x[n + c] = 0.0;
+        }
+        fact.solve(x);
+        self.t.clear();
+        for (j, (c, on, _)) in self.cols.iter().enumerate() {
+            self.t.push(g[j] - Self::bt(kkt, *c, *on, x));
+        }
+        // μ = S⁻¹ t.
+        let mut mu: Vec<f64> = self.piv.iter().map(|&p| self.t[p]).collect();
+        for i in 0..k {
+            for j in 0..i {
+                mu[i] -= self.lu[i * k + j] * mu[j];
+            }
+        }
+        for i in (0..k).rev() {
+            for j in i + 1..k {
+                mu[i] -= self.lu[i * k + j] * mu[j];
+            }
+            mu[i] /= self.lu[i * k + i];
+        }
+        for (j, (_, _, w)) in self.cols.iter().enumerate() {
+            x.iter_mut().zip(w).for_each(|(xi, wi)| *xi -= mu[j] * wi);
+        }
+        for (j, &(c, on, _)) in self.cols.iter().enumerate() {
+            x[n + c] = if on { mu[j] } else { off[j] };
+        }
+    }
+}
+
 /// OSQP-style ADMM on `min ½xᵀHx + qᵀx` s.t. `D x = z`, `z >= 0` (`z = 0` on the fixed
 /// cells), with `fact` holding `[H + σI, Dᵀ; D, −1/ρ]`. Returns the masses `z` after
 /// [`ADMM_ITERS`] iterations (zero where the guess is "active").
@@ -402,4 +573,72 @@ fn admm_masses(
         }
     }
     z
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::Grid;
+    use crate::identify::rows::build_rows;
+
+    #[test]
+    fn bordered_solve_equals_a_refactorization_after_constraints_switch() {
+        // A small noisy identification problem; factor the KKT matrix of one active set,
+        // switch some constraints on and some off, and solve both ways.
+        let n_h = 12;
+        let grid = Grid::new(0.0, 1.0, n_h).unwrap();
+        let n = 20_000;
+        let u: Vec<f64> = (0..n)
+            .map(|k| {
+                let t = k as f64 / n as f64;
+                0.5 + 0.5 * t * (60.0 * t).sin() + 0.01 * (k as f64 * 1.7).sin()
+            })
+            .collect();
+        let y: Vec<f64> = u.iter().enumerate().map(|(k, x)| x * x + 0.01 * (k as f64 * 0.37).cos()).collect();
+        let rows = build_rows(&grid, &u, &y, false);
+        let zero = vec![false; grid.n_q()];
+        let pb = Problem { rows: &rows, mu: 0.5, scale: 1.0, zero: &zero, reg: 0.0 };
+        let (trip, _) = everett_objective(&pb);
+        let mut kkt = Kkt::build(&pb, trip);
+        let (nv, m) = (kkt.n, kkt.m);
+        let dim = nv + m;
+        let eps = 1e-6;
+        for i in 0..nv {
+            kkt.reg[i] = eps;
+        }
+        let mut active: Vec<bool> = (0..m).map(|c| c % 3 == 0).collect();
+        for (c, &a) in active.iter().enumerate() {
+            kkt.set(c, a, eps);
+        }
+        let signs: Vec<i8> = (0..dim).map(|i| if i < nv { 1 } else { -1 }).collect();
+        let pat = Pattern { colptr: &kkt.colptr.clone(), rowval: &kkt.rowval.clone() };
+        let order = amd_order(&pat).unwrap();
+        let mut fact = Ldl::new(&pat, &order, &signs);
+        let mut kval = vec![0.0; kkt.val.len()];
+        let mut coupled = vec![true; dim];
+        coupled[nv..].copy_from_slice(&active);
+        kkt.regularized(&mut kval);
+        assert!(fact.factor(&kval, Some(&coupled)));
+        // Switch constraints both ways.
+        let changed = [1usize, 3, 5, 9, 20, 31];
+        for &c in &changed {
+            active[c] = !active[c];
+            kkt.set(c, active[c], eps);
+        }
+        let mut border = Border::default();
+        assert!(border.update(&changed, &active, &kkt, &mut fact, eps));
+        let rhs: Vec<f64> = (0..dim).map(|i| (i as f64 * 0.61).sin()).collect();
+        let mut xb = rhs.clone();
+        border.solve(&kkt, &mut fact, &mut xb);
+        let mut direct = Ldl::new(&pat, &order, &signs);
+        coupled[nv..].copy_from_slice(&active);
+        kkt.regularized(&mut kval);
+        assert!(direct.factor(&kval, Some(&coupled)));
+        let mut xd = rhs.clone();
+        direct.solve(&mut xd);
+        let scale = xd.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+        for (a, b) in xb.iter().zip(&xd) {
+            assert!((a - b).abs() <= 1e-10 * scale, "{a} vs {b}");
+        }
+    }
 }
