@@ -386,7 +386,7 @@ pub fn amd_order(pat: &Pattern) -> crate::error::Result<Vec<usize>> {
     let mut inv = vec![0usize; n];
     let sym = SymbolicSparseColMatRef::new_checked(n, n, pat.colptr, None, pat.rowval);
     let mut mem = MemBuffer::new(amd::order_scratch::<usize>(n, pat.rowval.len()));
-    amd::order(&mut perm, &mut inv, sym, amd::Control::default(), MemStack::new(&mut mem))
+    amd::order(&mut perm, &mut inv, sym, amd::Control { dense: 3.0, aggressive: true }, MemStack::new(&mut mem))
         .map_err(|e| crate::error::PreisachError::Solver(format!("ordering: {e:?}")))?;
     Ok(perm)
 }
