@@ -45,7 +45,7 @@ use crate::error::Result;
 /// constraints, and new ones only while their solves cost less than this share of a
 /// refactorization.
 const BORDER_MAX: usize = 48;
-const BORDER_SHARE: f64 = 0.5;
+const BORDER_SHARE: f64 = 0.75;
 /// Steps without fewer violated conditions before giving up.
 const STALL_STEPS: u32 = 3;
 /// Refinement passes per step (each is one pair of triangular solves).
