@@ -31,6 +31,12 @@ impl PreisachError {
 
 /// Check that every value of `xs` is finite; the error names the first bad index.
 pub fn check_finite(name: &str, xs: &[f64]) -> Result<()> {
+    // `x · 0` is 0 for a finite x and NaN otherwise: one vectorized sum per block finds
+    // a bad block without a branch per sample; only then is the index searched.
+    let all_finite = xs.chunks(256).all(|c| c.iter().fold(0.0f64, |a, &x| a + x * 0.0) == 0.0);
+    if all_finite {
+        return Ok(());
+    }
     if let Some(i) = xs.iter().position(|x| !x.is_finite()) {
         let what = if xs[i].is_nan() { "NaN" } else { "inf" };
         return Err(PreisachError::invalid(name, format!("{what} at index {i}")));

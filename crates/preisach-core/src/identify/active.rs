@@ -573,24 +573,26 @@ fn admm_masses(
     let mut z = vec![0.0; m];
     let mut y = vec![0.0; m];
     let mut rhs = vec![0.0; n + m];
+    // Penalty per constraint (the fixed cells' equality 1000× stiffer) and its inverse:
+    // no division in the loop.
+    let rc: Vec<f64> = zero.iter().map(|&zc| if zc { 1e3 * rho } else { rho }).collect();
+    let ic: Vec<f64> = rc.iter().map(|r| 1.0 / r).collect();
     for _ in 0..ADMM_ITERS {
         for i in 0..n {
             rhs[i] = sigma * x[i] - q[i];
         }
         for c in 0..m {
-            let rc = if zero[c] { 1e3 * rho } else { rho };
-            rhs[n + c] = z[c] - y[c] / rc;
+            rhs[n + c] = z[c] - y[c] * ic[c];
         }
         fact.solve(&mut rhs);
         for i in 0..n {
             x[i] = ADMM_ALPHA * rhs[i] + (1.0 - ADMM_ALPHA) * x[i];
         }
         for c in 0..m {
-            let rc = if zero[c] { 1e3 * rho } else { rho };
-            let zt = z[c] + (rhs[n + c] - y[c]) / rc;
+            let zt = z[c] + (rhs[n + c] - y[c]) * ic[c];
             let zh = ADMM_ALPHA * zt + (1.0 - ADMM_ALPHA) * z[c];
-            let zn = if zero[c] { 0.0 } else { (zh + y[c] / rc).max(0.0) };
-            y[c] += rc * (zh - zn);
+            let zn = if zero[c] { 0.0 } else { (zh + y[c] * ic[c]).max(0.0) };
+            y[c] += rc[c] * (zh - zn);
             z[c] = zn;
         }
     }

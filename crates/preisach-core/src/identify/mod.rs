@@ -109,8 +109,25 @@ pub fn default_range(u: &[f64]) -> Result<(f64, f64)> {
     Ok((mn + pad, mx - pad))
 }
 
+/// Range of a finite signal (four lanes of plain comparisons: they vectorize, where
+/// the NaN-aware `f64::min` does not).
 fn min_max(u: &[f64]) -> (f64, f64) {
-    u.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)))
+    let mut lo = [f64::INFINITY; 4];
+    let mut hi = [f64::NEG_INFINITY; 4];
+    let chunks = u.chunks_exact(4);
+    let tail = chunks.remainder();
+    for c in chunks {
+        for t in 0..4 {
+            lo[t] = if c[t] < lo[t] { c[t] } else { lo[t] };
+            hi[t] = if c[t] > hi[t] { c[t] } else { hi[t] };
+        }
+    }
+    let (mut a, mut b) = (lo[0].min(lo[1]).min(lo[2].min(lo[3])), hi[0].max(hi[1]).max(hi[2].max(hi[3])));
+    for &x in tail {
+        a = a.min(x);
+        b = b.max(x);
+    }
+    (a, b)
 }
 
 /// Excitation statistics on the quantized levels (consecutive repeats may be dropped:
@@ -256,8 +273,17 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
         }
     }
 
-    let mu = y.iter().sum::<f64>() / y.len() as f64;
-    let var = y.iter().map(|v| (v - mu) * (v - mu)).sum::<f64>() / y.len() as f64;
+    // Mean and variance of y: from the stepwise rows (counts, means and within-row
+    // scatter hold them exactly) rather than two more passes over the samples.
+    let nt = y.len() as f64;
+    let (mu, var) = if opts.interpolated {
+        let mu = y.iter().sum::<f64>() / nt;
+        (mu, y.iter().map(|v| (v - mu) * (v - mu)).sum::<f64>() / nt)
+    } else {
+        let mu = rows.weight.iter().zip(&rows.target).map(|(w, t)| w * t).sum::<f64>() / nt;
+        let between: f64 = rows.weight.iter().zip(&rows.target).map(|(w, t)| w * (t - mu) * (t - mu)).sum();
+        (mu, (between + rows.within_ss) / nt)
+    };
     let scale = if var > 0.0 { var.sqrt() } else { mu.abs().max(1.0) };
     let pb = Problem { rows: &rows, mu, scale, zero: &zero, reg: opts.reg };
     let n_free = zero.iter().filter(|z| !**z).count();

@@ -133,10 +133,27 @@ pub fn build_rows(grid: &Grid, u: &[f64], y: &[f64], interpolated: bool) -> Rows
     let mut scratch: Vec<(u32, f64)> = Vec::new();
     let mut prev_p = f64::NAN;
     let mut row = 0usize;
+    // The samples of one run (the level unchanged, so the same row) are summed as
+    // deviations from the run's first sample, then merged into the row's mean and
+    // scatter (Chan, Golub & LeVeque): one division per run, not a dependent one per
+    // sample, and the shifted sums keep the scatter exact to rounding.
+    let mut run = Run::default();
+    // The current level's input interval [thr[k−1], thr[k]): a sample inside it keeps
+    // the level without quantizing (most do; the bounds are exactly quantize's).
+    let thr = grid.thresholds();
+    let (mut below, mut above) = (f64::NAN, f64::NAN);
     for (&x, &yt) in u.iter().zip(y) {
+        if x >= below && x < above {
+            run.add(yt);
+            continue;
+        }
         let level = grid.quantize(x);
+        let k = level as usize;
+        below = if k == 0 { f64::NEG_INFINITY } else { thr[k - 1] };
+        above = if k == n_h { f64::INFINITY } else { thr[k] };
         let p = level as f64;
         if p != prev_p {
+            run.merge_into(&mut rows, &mut m2, row);
             rows.levels.push(level);
             mem.apply(p, &no_e);
             prev_p = p;
@@ -155,15 +172,50 @@ pub fn build_rows(grid: &Grid, u: &[f64], y: &[f64], interpolated: bool) -> Rows
                 }
             };
         }
-        // Welford update of the row's mean and scatter.
-        let w = rows.weight[row] + 1.0;
-        let d = yt - rows.target[row];
-        rows.weight[row] = w;
-        rows.target[row] += d / w;
-        m2[row] += d * (yt - rows.target[row]);
+        run.add(yt);
     }
+    run.merge_into(&mut rows, &mut m2, row);
     rows.within_ss = m2.iter().sum();
     rows
+}
+
+/// A run of samples in one row: count, first sample, and the sums of the deviations
+/// from it and of their squares.
+#[derive(Default)]
+struct Run {
+    n: f64,
+    y0: f64,
+    s1: f64,
+    s2: f64,
+}
+
+impl Run {
+    #[inline]
+    fn add(&mut self, y: f64) {
+        if self.n == 0.0 {
+            self.y0 = y;
+        }
+        let d = y - self.y0;
+        self.n += 1.0;
+        self.s1 += d;
+        self.s2 += d * d;
+    }
+
+    /// Merge into row `r`'s count, mean and scatter, and start empty.
+    fn merge_into(&mut self, rows: &mut Rows, m2: &mut [f64], r: usize) {
+        if self.n == 0.0 {
+            return;
+        }
+        let (na, nb) = (rows.weight[r], self.n);
+        let mean_b = self.y0 + self.s1 / nb;
+        let m2_b = (self.s2 - self.s1 * self.s1 / nb).max(0.0);
+        let n = na + nb;
+        let d = mean_b - rows.target[r];
+        rows.weight[r] = n;
+        rows.target[r] += d * nb / n;
+        m2[r] += m2_b + d * d * na * nb / n;
+        *self = Run::default();
+    }
 }
 
 /// Moments of the samples sharing one interpolated group (same extrema, current input in
