@@ -302,12 +302,20 @@ impl Ldl {
                 v[..kk].copy_from_slice(&x[i * k + g..i * k + g + kk]);
                 w[t] = v;
             }
-            let (rp, ri, rx) = (&self.rp, &self.ri, &self.rx);
-            for r in 0..n {
-                let a = dot4(&ri[rp[r]..rp[r + 1]], &rx[rp[r]..rp[r + 1]], &w);
-                let wr = &mut w[r];
-                for t in 0..4 {
-                    wr[t] -= a[t];
+            // Forward sweep by columns, skipping zero ones: the callers' right-hand sides
+            // are sparse (a constraint's four coefficients or a unit vector), and their
+            // solution is nonzero only along the elimination-tree paths above them.
+            let (lp, lend, li, lx) = (&self.lp, &self.lend, &self.li, &self.lx);
+            for j in 0..n {
+                let wj = w[j];
+                if wj == [0.0; 4] {
+                    continue;
+                }
+                for (&r, &l) in li[lp[j]..lend[j]].iter().zip(&lx[lp[j]..lend[j]]) {
+                    let wr = &mut w[r as usize];
+                    for t in 0..4 {
+                        wr[t] -= l * wj[t];
+                    }
                 }
             }
             for (wt, &di) in w.iter_mut().zip(&self.dinv) {
@@ -315,7 +323,6 @@ impl Ldl {
                     *v *= di;
                 }
             }
-            let (lp, lend, li, lx) = (&self.lp, &self.lend, &self.li, &self.lx);
             for j in (0..n).rev() {
                 let a = dot4(&li[lp[j]..lend[j]], &lx[lp[j]..lend[j]], &w);
                 let wj = &mut w[j];
