@@ -169,8 +169,11 @@ def make_stage(seed: int, names: tuple[str, ...], fs: float = 50e3, dur: float =
 
 
 # ----------------------------------------------------------------------------- runner
-def run(n_per_class: int = 3, seed: int = 1, fs: float = 50e3, verbose: bool = True) -> dict[str, Any]:
-    """Run the validation; returns the raw results (used by the pytest smoke test)."""
+def run(n_per_class: int = 3, seed: int = 1, fs: float = 50e3, verbose: bool = True,
+        n_per_pair: int | None = None) -> dict[str, Any]:
+    """Run the validation (``n_per_class`` stages per single effect and for none,
+    ``n_per_pair`` per pair, default a third of it); returns the raw results (used by
+    the pytest smoke test)."""
     from preisach.chain import Chain
     from preisach.diagnose import diagnose
 
@@ -179,7 +182,7 @@ def run(n_per_class: int = 3, seed: int = 1, fs: float = 50e3, verbose: bool = T
     results = []
     k = 0
     for cls in classes:
-        reps = n_per_class if len(cls) < 2 else max(1, n_per_class // 3)
+        reps = n_per_class if len(cls) < 2 else (n_per_pair if n_per_pair is not None else max(1, n_per_class // 3))
         for r in range(reps):
             st = make_stage(seed * 1000 + k, cls, fs=fs)
             k += 1
@@ -261,19 +264,28 @@ def summarize(results: list[dict[str, Any]], verbose: bool = True) -> dict[str, 
         secs = [r["seconds"] for r in results]
         print(f"- diagnosis time per stage: median {np.median(secs):.1f} s, max {max(secs):.1f} s\n")
         print("### Per stage\n")
-        print("| truth | found | blind RMSE before → after | shrink | interpolated refit → after |")
-        print("|---|---|---|---|---|")
+        print("| truth | found | blind RMSE before → after | shrink | interpolated refit → after | parameters (found / true) |")
+        print("|---|---|---|---|---|---|")
         for r in results:
             s = 1 - r["blind_after"] / r["blind_before"]
             ref = f"{r['blind_ref']:.4g} → {r['blind_after']:.4g}" if "blind_ref" in r else "—"
+            par = []
+            fp, tp = r["found_params"], r["params"]
+            if "delay" in fp and "delay" in tp:
+                par.append(f"delay {fp['delay']['delay_s'] * 1e3:.3g} / {tp['delay']['delay_s'] * 1e3:.3g} ms")
+            if "vibration" in fp and "vibration" in tp:
+                par.append(f"mode {fp['vibration']['frequency_hz']:.4g} / {tp['vibration']['frequency_hz']:.4g} Hz")
+            if "lowpass" in fp and "lowpass" in tp:
+                par.append(f"low-pass {fp['lowpass']['cutoff_hz']:.4g} / {tp['lowpass']['cutoff_hz']:.4g} Hz")
             print(f"| {'+'.join(r['truth']) or 'none'} | {', '.join(r['found']) or 'none'} | "
-                  f"{r['blind_before']:.4g} → {r['blind_after']:.4g} | {s:.0%} | {ref} |")
+                  f"{r['blind_before']:.4g} → {r['blind_after']:.4g} | {s:.0%} | {ref} | {'; '.join(par)} |")
     return out
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--stages", type=int, default=3, help="stages per single-effect class (pairs: a third)")
+    ap.add_argument("--stages", type=int, default=3, help="stages per single-effect class and for none")
+    ap.add_argument("--pairs", type=int, default=None, help="stages per pair of effects (default: a third of --stages)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--fs", type=float, default=50e3)
     ap.add_argument("--timing", default=None, help="time one 100 kHz stage with these effects ('none' or e.g. delay+creep)")
@@ -290,7 +302,7 @@ def main() -> int:
         print(f"truth {names or ('none',)}: found {found or ['none']} in {el:.1f} s "
               f"(6 s of 100 kHz data, {len(CANDIDATES_ALL)} candidates)")
         return 0
-    run(a.stages, a.seed, a.fs)
+    run(a.stages, a.seed, a.fs, n_per_pair=a.pairs)
     return 0
 
 

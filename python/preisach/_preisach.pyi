@@ -57,7 +57,9 @@ def fit_behind(
 ) -> tuple[Model, dict[str, Any]]: ...
 @final
 class Behind:
-    def __new__(cls, u: NDArray[np.float64], n_h: int, u_range: tuple[float, float]) -> Behind: ...
+    def __new__(cls, u: NDArray[np.float64], n_h: int, u_range: tuple[float, float], stride: int = 1) -> Behind: ...
+    @property
+    def n_out(self) -> int: ...
     def solve(
         self,
         z: NDArray[np.float64],
@@ -70,6 +72,7 @@ class Behind:
         max_iter: int = 300,
         warm: bool = True,
         nnls: bool = False,
+        delay: float = 0.0,
     ) -> dict[str, Any]: ...
 
 def regression_rows(

@@ -91,6 +91,18 @@ impl PreisachModel {
     pub fn everett(&self) -> &Everett {
         &self.everett
     }
+    /// The Everett values `E(a, b)`, 0 <= b < a <= n_h, in the order of
+    /// [`crate::identify::rows::everett_var`] (the coordinates of the regression rows).
+    pub fn everett_values(&self) -> Vec<f64> {
+        let n_h = self.n_h();
+        let mut e = Vec::with_capacity(self.grid.n_q());
+        for a in 1..=n_h {
+            for b in 0..a {
+                e.push(self.everett.at(a as u32, b as u32));
+            }
+        }
+        e
+    }
     pub fn n_h(&self) -> usize {
         self.grid.n_h()
     }

@@ -170,21 +170,29 @@ fn rows_of<'a>(name: &str, a: &'a Option<PyReadonlyArray2<'_, f64>>) -> PyResult
 #[pymethods]
 impl Behind {
     #[new]
-    fn new(py: Python<'_>, u: PyReadonlyArray1<'_, f64>, n_h: i64, u_range: (f64, f64)) -> PyResult<Self> {
+    #[pyo3(signature = (u, n_h, u_range, stride=1))]
+    fn new(py: Python<'_>, u: PyReadonlyArray1<'_, f64>, n_h: i64, u_range: (f64, f64), stride: usize) -> PyResult<Self> {
         guard(|| {
             if n_h < 1 {
                 return Err(to_py(preisach_core::PreisachError::invalid("n_h", format!("must be >= 1, got {n_h}"))));
             }
             let u = slice("u", &u)?;
-            let b = py.detach(|| CoreBehind::new(u, n_h as usize, u_range)).map_err(to_py)?;
+            let b = py.detach(|| CoreBehind::new(u, n_h as usize, u_range, stride)).map_err(to_py)?;
             Ok(Behind { inner: Mutex::new(b) })
         })
     }
 
+    /// Number of output samples (windows of ``stride`` input samples).
+    #[getter]
+    fn n_out(&self) -> usize {
+        self.inner.lock().unwrap_or_else(|e| e.into_inner()).n_samples()
+    }
+
     /// Unconstrained optimum of the chain fit (and with ``nnls`` the masses >= 0):
     /// a dict with rmse, iterations, residual, extra (coefficients of pre then post
-    /// columns) and, with ``nnls``, model, rmse_nnls, extra_nnls.
-    #[pyo3(signature = (z, dt, blocks, weights=None, pre=None, post=None, tol=1e-4, max_iter=300, warm=true, nnls=false))]
+    /// columns) and, with ``nnls``, model, rmse_nnls, extra_nnls. ``delay`` (in input
+    /// samples) delays the hysteresis output before the averaging.
+    #[pyo3(signature = (z, dt, blocks, weights=None, pre=None, post=None, tol=1e-4, max_iter=300, warm=true, nnls=false, delay=0.0))]
     #[allow(clippy::too_many_arguments)]
     fn solve<'py>(
         &self,
@@ -199,6 +207,7 @@ impl Behind {
         max_iter: usize,
         warm: bool,
         nnls: bool,
+        delay: f64,
     ) -> PyResult<Bound<'py, PyDict>> {
         guard(|| {
             let z = slice("z", &z)?;
@@ -209,7 +218,7 @@ impl Behind {
             let (pre_rows, post_rows) = (rows_of("pre", &pre)?, rows_of("post", &post)?);
             let blocks: Vec<LtiBlock> =
                 blocks.into_iter().map(|(poles, residues, direct)| LtiBlock { poles, residues, direct }).collect();
-            let terms = Terms { omega: w, pre: &pre_rows, post: &post_rows };
+            let terms = Terms { omega: w, pre: &pre_rows, post: &post_rows, delay };
             let res = py
                 .detach(|| {
                     let mut lti = Cascade::new(&blocks, dt)?;

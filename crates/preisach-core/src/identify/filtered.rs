@@ -189,6 +189,12 @@ impl Cascade {
 /// t's row is `(1 − λ_t) r_a + λ_t r_b` (plus 1 for the offset), with `r_a`, `r_b` the
 /// rows of its group (same stored extrema, current input in the same cell) at the cell's
 /// two levels (see `rows::build_rows_interpolated`).
+///
+/// The fit may run on windows of `stride` samples averaged (an output sample is the mean
+/// of its window, the last partial window dropped): the average commutes with the linear
+/// blocks, so a chain fitted to the averaged record is the chain of the full-rate one,
+/// and an averaged row keeps where in the window a step of the input happened (point
+/// decimation moves it to a sample and biases every timing the dynamics carry).
 struct SampleRows {
     n_q: usize,
     group: Vec<u32>,
@@ -197,13 +203,20 @@ struct SampleRows {
     ptr: Vec<usize>,
     idx: Vec<u32>,
     val: Vec<f64>,
+    /// Output samples (averaged windows) as mixtures of groups: entries
+    /// `optr[k]..optr[k+1]` of (group, weight of r_a, weight of r_b).
+    optr: Vec<usize>,
+    omix: Vec<(u32, f64, f64)>,
+    stride: usize,
+    /// Delay (in input samples) the mixture holds.
+    delay: f64,
     // Scratch per group.
     va: Vec<f64>,
     vb: Vec<f64>,
 }
 
 impl SampleRows {
-    fn new(grid: &Grid, u: &[f64]) -> Self {
+    fn new(grid: &Grid, u: &[f64], stride: usize) -> Self {
         use std::collections::HashMap;
         let n_h = grid.n_h();
         let mut mem: Memory<f64> = Memory::new(0.0, 4 * (n_h + 3));
@@ -218,6 +231,10 @@ impl SampleRows {
             ptr: vec![0],
             idx: Vec::new(),
             val: Vec::new(),
+            optr: vec![0],
+            omix: Vec::new(),
+            stride: stride.max(1),
+            delay: f64::NAN,
             va: Vec::new(),
             vb: Vec::new(),
         };
@@ -257,14 +274,66 @@ impl SampleRows {
             sr.group.push(g);
             sr.lam.push(lam);
         }
+        sr.set_delay(0.0);
         let n_g = sr.ptr.len() / 2;
         sr.va = vec![0.0; n_g];
         sr.vb = vec![0.0; n_g];
         sr
     }
 
+    /// Rebuild the output mixtures for the hysteresis output delayed by `delay` input
+    /// samples (linear interpolation between samples, the value at rest before the
+    /// start: what the chain's delay block does to its input, and a delay commutes with
+    /// the linear blocks). O(samples); nothing else changes.
+    fn set_delay(&mut self, delay: f64) {
+        if delay == self.delay {
+            return;
+        }
+        self.delay = delay;
+        let s = self.stride;
+        let n = self.group.len();
+        let inv = 1.0 / s as f64;
+        self.optr.clear();
+        self.optr.push(0);
+        self.omix.clear();
+        let add = |mix: &mut Vec<(u32, f64, f64)>, start: usize, j: usize, w: f64| {
+            if w == 0.0 {
+                return;
+            }
+            let (g, l) = (self.group[j], self.lam[j]);
+            match mix[start..].iter_mut().find(|e| e.0 == g) {
+                Some(e) => {
+                    e.1 += (1.0 - l) * w;
+                    e.2 += l * w;
+                }
+                None => mix.push((g, (1.0 - l) * w, l * w)),
+            }
+        };
+        for k in 0..n / s {
+            let start = self.omix.len();
+            for i in k * s..(k + 1) * s {
+                let x = i as f64 - delay;
+                if x <= 0.0 {
+                    add(&mut self.omix, start, 0, inv);
+                    continue;
+                }
+                let j0 = x.floor() as usize;
+                let f = x - j0 as f64;
+                add(&mut self.omix, start, j0.min(n - 1), (1.0 - f) * inv);
+                if f > 0.0 {
+                    add(&mut self.omix, start, (j0 + 1).min(n - 1), f * inv);
+                }
+            }
+            self.optr.push(self.omix.len());
+        }
+    }
+
     fn n_groups(&self) -> usize {
         self.va.len()
+    }
+
+    fn n_out(&self) -> usize {
+        self.optr.len() - 1
     }
 
     fn row(&self, g: usize, b: usize) -> (&[u32], &[f64]) {
@@ -272,13 +341,30 @@ impl SampleRows {
         (&self.idx[s..e], &self.val[s..e])
     }
 
-    /// `h = B x` (x: Everett values, then the offset).
-    fn forward(&mut self, x: &[f64], h: &mut [f64]) {
+    fn group_values(&mut self, x: &[f64]) {
         for g in 0..self.n_groups() {
             let dot = |(idx, val): (&[u32], &[f64])| idx.iter().zip(val).map(|(&i, &v)| v * x[i as usize]).sum::<f64>();
             self.va[g] = dot(self.row(g, 0));
             self.vb[g] = dot(self.row(g, 1));
         }
+    }
+
+    /// `h = B x` on the output samples (x: Everett values, then the offset).
+    fn forward(&mut self, x: &[f64], h: &mut [f64]) {
+        self.group_values(x);
+        let c = x[self.n_q];
+        for (k, o) in h.iter_mut().enumerate() {
+            let mut v = c;
+            for &(g, wa, wb) in &self.omix[self.optr[k]..self.optr[k + 1]] {
+                v += wa * self.va[g as usize] + wb * self.vb[g as usize];
+            }
+            *o = v;
+        }
+    }
+
+    /// `h = B x` on every input sample.
+    fn forward_fine(&mut self, x: &[f64], h: &mut [f64]) {
+        self.group_values(x);
         let c = x[self.n_q];
         for ((o, &g), &l) in h.iter_mut().zip(&self.group).zip(&self.lam) {
             let g = g as usize;
@@ -286,14 +372,16 @@ impl SampleRows {
         }
     }
 
-    /// `x = Bᵀ v`.
+    /// `x = Bᵀ v` (v on the output samples).
     fn adjoint(&mut self, v: &[f64], x: &mut [f64]) {
         self.va.iter_mut().for_each(|a| *a = 0.0);
         self.vb.iter_mut().for_each(|b| *b = 0.0);
         let mut total = 0.0;
-        for ((&w, &g), &l) in v.iter().zip(&self.group).zip(&self.lam) {
-            self.va[g as usize] += (1.0 - l) * w;
-            self.vb[g as usize] += l * w;
+        for (k, &w) in v.iter().enumerate() {
+            for &(g, wa, wb) in &self.omix[self.optr[k]..self.optr[k + 1]] {
+                self.va[g as usize] += wa * w;
+                self.vb[g as usize] += wb * w;
+            }
             total += w;
         }
         x.iter_mut().for_each(|o| *o = 0.0);
@@ -308,18 +396,18 @@ impl SampleRows {
         x[self.n_q] = total;
     }
 
-    /// Upper-triangular triplets of `Bᵀ Ω B` (the offset is variable n_q). Per group the
-    /// samples' rows are `(1 − λ) ã + λ b̃` with ã = r_a + e_offset: the 2×2 moment
-    /// matrix of (1 − λ, λ) gives the group's whole contribution.
-    fn gram(&self, omega: Option<&[f64]>) -> Vec<(u64, f64)> {
+    /// Upper-triangular triplets of (nearly) `Bᵀ B` on the output samples (the offset is
+    /// variable n_q): per group the entries are `wa ã + wb b̃` with ã = r_a + e_offset,
+    /// and the 2×2 moment matrix of (wa, wb) gives the group's contribution. (Cross terms
+    /// between groups sharing an averaged window are left out: a preconditioner only.)
+    fn gram(&self) -> Vec<(u64, f64)> {
         let n_g = self.n_groups();
         let mut mom = vec![[0.0f64; 3]; n_g];
-        for (t, (&g, &l)) in self.group.iter().zip(&self.lam).enumerate() {
-            let w = omega.map_or(1.0, |o| o[t]);
+        for &(g, wa, wb) in &self.omix {
             let m = &mut mom[g as usize];
-            m[0] += w * (1.0 - l) * (1.0 - l);
-            m[1] += w * (1.0 - l) * l;
-            m[2] += w * l * l;
+            m[0] += wa * wa;
+            m[1] += wa * wb;
+            m[2] += wb * wb;
         }
         let off = self.n_q as u32;
         let mut trip = Vec::new();
@@ -363,8 +451,11 @@ impl SampleRows {
 }
 
 /// `M⁻¹` for the conjugate gradients: sparse LDLᵀ of the Gram matrix plus a ridge.
+/// Variables no sample observes (empty rows) are masked out: the ridge alone would
+/// blow rounding errors in them up by its inverse.
 struct Precond {
     fact: QDLDLFactorisation<f64>,
+    dead: Vec<usize>,
 }
 
 impl Precond {
@@ -389,6 +480,7 @@ impl Precond {
         }
         // The diagonal is the last entry of each column (upper triangle, sorted rows).
         let dmax = (0..dim).map(|c| val[colptr[c + 1] - 1]).fold(0.0f64, f64::max).max(1e-300);
+        let dead: Vec<usize> = (0..dim).filter(|&c| val[colptr[c + 1] - 1] <= 1e-14 * dmax).collect();
         for c in 0..dim {
             val[colptr[c + 1] - 1] += 1e-10 * dmax;
         }
@@ -398,12 +490,18 @@ impl Precond {
             .build()
             .map_err(|e| PreisachError::Solver(format!("qdldl settings: {e}")))?;
         let fact = QDLDLFactorisation::new(&mat, Some(settings)).map_err(|e| PreisachError::Solver(format!("qdldl: {e:?}")))?;
-        Ok(Precond { fact })
+        Ok(Precond { fact, dead })
     }
 
     fn solve(&mut self, b: &[f64], x: &mut [f64]) {
         x.copy_from_slice(b);
+        for &i in &self.dead {
+            x[i] = 0.0;
+        }
         self.fact.solve(x);
+        for &i in &self.dead {
+            x[i] = 0.0;
+        }
     }
 }
 
@@ -418,7 +516,8 @@ pub struct Behind {
     u: Vec<f64>,
     rows: SampleRows,
     pre: Precond,
-    /// Last unconstrained solution (Everett values, offset), for warm starts.
+    /// Last unconstrained solution (Everett values, offset, extra coefficients), for warm
+    /// starts (used when the number of extra terms matches).
     last: Option<Vec<f64>>,
 }
 
@@ -436,35 +535,51 @@ pub struct BehindSolution {
     pub rmse: f64,
 }
 
-/// Extra columns and weights of one solve.
+/// Extra columns, weights and delay of one solve.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Terms<'a> {
     pub omega: Option<&'a [f64]>,
+    /// Columns added to the hysteresis output before the dynamics (given per output
+    /// sample, already delayed like it).
     pub pre: &'a [&'a [f64]],
+    /// Columns added after the dynamics.
     pub post: &'a [&'a [f64]],
+    /// Delay of the hysteresis output, in input samples (>= 0).
+    pub delay: f64,
 }
 
 impl Behind {
-    /// Rows of the interpolated model on `grid` for input `u`.
-    pub fn new(u: &[f64], n_h: usize, u_range: (f64, f64)) -> Result<Self> {
+    /// Rows of the interpolated model on `grid` for input `u`; the fit runs on windows
+    /// of `stride` samples averaged (targets, weights and columns are then given per
+    /// window, `u.len() / stride` of them; see [`SampleRows`]).
+    pub fn new(u: &[f64], n_h: usize, u_range: (f64, f64), stride: usize) -> Result<Self> {
         check_signal("u", u)?;
+        if stride < 1 || stride > u.len() {
+            return Err(PreisachError::invalid("stride", format!("must be in 1..={}, got {stride}", u.len())));
+        }
         let grid = Grid::new(u_range.0, u_range.1, n_h)?;
-        let rows = SampleRows::new(&grid, u);
+        let rows = SampleRows::new(&grid, u, stride);
         let dim = grid.n_q() + 1;
         // Preconditioner: the unfiltered, unweighted Gram matrix (a small ridge covers
         // Everett values no sample observes).
-        let mut trip = rows.gram(None);
+        let mut trip = rows.gram();
         trip.extend((0..dim).map(|i| (key(i, i), 0.0)));
         let pre = Precond::new(dim, trip)?;
         Ok(Behind { grid, u: u.to_vec(), rows, pre, last: None })
     }
 
+    /// Number of output samples (averaged windows): the length of targets and columns.
     pub fn n_samples(&self) -> usize {
-        self.u.len()
+        self.rows.n_out()
     }
 
-    fn check_terms(&self, z: &[f64], t: &Terms) -> Result<()> {
-        let n = self.u.len();
+    fn check_terms(&mut self, z: &[f64], t: &Terms) -> Result<()> {
+        check_scalar("delay", t.delay)?;
+        if t.delay < 0.0 {
+            return Err(PreisachError::invalid("delay", format!("must be >= 0, got {}", t.delay)));
+        }
+        self.rows.set_delay(t.delay);
+        let n = self.rows.n_out();
         check_signal("z", z)?;
         if z.len() != n {
             return Err(PreisachError::invalid("z", format!("length {} does not match u (length {n})", z.len())));
@@ -490,7 +605,8 @@ impl Behind {
     }
 
     /// The unconstrained least-squares optimum of `Σ ω (z − L(B x + Σ a_k pre_k) − Σ b_k post_k)²`
-    /// by preconditioned conjugate gradients (see the module documentation).
+    /// by preconditioned conjugate gradients (see the module documentation). `tol`: stop
+    /// when two iterations in a row lower the sum of squares by less than this fraction.
     pub fn solve(
         &mut self,
         z: &[f64],
@@ -502,7 +618,7 @@ impl Behind {
     ) -> Result<BehindSolution> {
         self.check_terms(z, terms)?;
         check_scalar("tol", tol)?;
-        let n = self.u.len();
+        let n = self.rows.n_out();
         let nh = self.grid.n_q() + 1;
         let (kp, kq) = (terms.pre.len(), terms.post.len());
         let dim = nh + kp + kq;
@@ -565,35 +681,67 @@ impl Behind {
         s2.copy_from_slice(z);
         weigh(&mut s2);
         adjoint(&s2, rows, lti, &mut s1, &mut b);
-        let mut x = vec![0.0; dim];
-        match (&self.last, warm) {
-            (Some(l), true) => x[..nh].copy_from_slice(l),
-            _ => {
-                // The fit that ignores the dynamics (B x ≈ z) is a good start.
-                let mut bz = vec![0.0; nh];
-                rows.adjoint(&s2, &mut bz);
-                pre.solve(&bz, &mut x[..nh]);
-            }
-        }
-        let mut zv = vec![0.0; dim];
-        precond(&b, &mut zv, pre);
-        let rz0 = dot(&b, &zv).max(1e-300);
-        let mut r = vec![0.0; dim];
-        let mut ap = vec![0.0; dim];
         let normal = |x: &[f64], out: &mut [f64], rows: &mut SampleRows, lti: &mut Cascade, s1: &mut [f64], s2: &mut [f64]| {
             forward(x, rows, lti, s1, s2);
             weigh(s2);
             adjoint(s2, rows, lti, s1, out);
         };
-        normal(&x, &mut ap, rows, lti, &mut s1, &mut s2);
-        for i in 0..dim {
-            r[i] = b[i] - ap[i];
+        // The cold start: the fit that ignores the dynamics and the extra terms (B x ≈ z).
+        // The tolerance is relative to its residual, the part of the problem that is not
+        // plain hysteresis fitting (relative to the right-hand side, the mean level of the
+        // output would dominate and a trend's coefficient be left unsolved).
+        let mut x = vec![0.0; dim];
+        {
+            let mut bz = vec![0.0; nh];
+            rows.adjoint(&s2, &mut bz);
+            pre.solve(&bz, &mut x[..nh]);
         }
+        let mut r = vec![0.0; dim];
+        let mut ap = vec![0.0; dim];
+        let mut zv = vec![0.0; dim];
+        let residual = |x: &[f64], r: &mut [f64], ap: &mut [f64], rows: &mut SampleRows, lti: &mut Cascade,
+                        s1: &mut [f64], s2: &mut [f64]| {
+            normal(x, ap, rows, lti, s1, s2);
+            for i in 0..dim {
+                r[i] = b[i] - ap[i];
+            }
+        };
+        residual(&x, &mut r, &mut ap, rows, lti, &mut s1, &mut s2);
         precond(&r, &mut zv, pre);
+        let rz0 = dot(&r, &zv).max(1e-300);
+        let mut rz = rz0;
+        if let (Some(l), true) = (&self.last, warm) {
+            // The previous solution, when it is the better start (the last problem may
+            // have been another chain's).
+            if l.len() == dim {
+                let (mut r2, mut zv2) = (vec![0.0; dim], vec![0.0; dim]);
+                residual(l, &mut r2, &mut ap, rows, lti, &mut s1, &mut s2);
+                precond(&r2, &mut zv2, pre);
+                let rz2 = dot(&r2, &zv2);
+                if rz2 < rz {
+                    x.copy_from_slice(l);
+                    r = r2;
+                    zv = zv2;
+                    rz = rz2;
+                }
+            }
+        }
         let mut p = zv.clone();
-        let mut rz = dot(&r, &zv);
         let mut it = 0;
-        while it < max_iter && rz > tol * tol * rz0 {
+        // Stopping rule on what the caller compares, the weighted sum of squares: each step
+        // lowers it by α·rᵀz exactly; stop when two steps in a row lower it by less than
+        // `tol` of its value. (A residual norm relative to the start can look converged
+        // while a direction the data barely separates from the masses, a drift's trend,
+        // is not.) Near rounding the iteration can break down (the residual blows up): the
+        // iterate with the smallest residual is kept.
+        forward(&x, rows, lti, &mut s1, &mut s2);
+        let mut sse: f64 = match omega {
+            Some(w) => s2.iter().zip(z).zip(w).map(|((a, b), w)| w * (a - b) * (a - b)).sum(),
+            None => s2.iter().zip(z).map(|(a, b)| (a - b) * (a - b)).sum(),
+        };
+        let (mut best_x, mut best_rz) = (x.clone(), rz);
+        let mut quiet = 0;
+        while it < max_iter && quiet < 2 && rz > 1e-24 * rz0 {
             normal(&p, &mut ap, rows, lti, &mut s1, &mut s2);
             let pap = dot(&p, &ap);
             if pap.is_nan() || pap <= 0.0 {
@@ -604,21 +752,32 @@ impl Behind {
                 x[i] += alpha * p[i];
                 r[i] -= alpha * ap[i];
             }
+            let drop = alpha * rz;
+            sse -= drop;
+            quiet = if drop <= tol * sse.max(1e-300) { quiet + 1 } else { 0 };
             precond(&r, &mut zv, pre);
             let rz_new = dot(&r, &zv);
+            it += 1;
+            if rz_new.is_nan() || rz_new > 1e4 * rz0 {
+                break;
+            }
+            if rz_new < best_rz {
+                best_rz = rz_new;
+                best_x.copy_from_slice(&x);
+            }
             let beta = rz_new / rz;
             rz = rz_new;
             for i in 0..dim {
                 p[i] = zv[i] + beta * p[i];
             }
-            it += 1;
         }
+        let (mut x, rz) = if best_rz < rz { (best_x, best_rz) } else { (x, rz) };
         if x.iter().any(|v| !v.is_finite()) {
             return Err(PreisachError::Solver("fit behind dynamics: conjugate gradients diverged".into()));
         }
         forward(&x, rows, lti, &mut s1, &mut s2);
         let rmse = weighted_rmse(&s2, z, omega);
-        self.last = Some(x[..nh].to_vec());
+        self.last = Some(x.clone());
         Ok(BehindSolution {
             extra: x[nh..].to_vec(),
             x: { x.truncate(nh); x },
@@ -640,9 +799,10 @@ impl Behind {
         terms: &Terms,
     ) -> Result<(PreisachModel, Vec<f64>, f64, FitReport)> {
         self.check_terms(z, terms)?;
-        let n = self.u.len();
-        let mut h_star = vec![0.0; n];
-        self.rows.forward(&sol.x, &mut h_star);
+        let nf = self.u.len();
+        let n = self.rows.n_out();
+        let mut h_star = vec![0.0; nf];
+        self.rows.forward_fine(&sol.x, &mut h_star);
         let fo = FitOptions {
             n_h: self.grid.n_h(),
             u_range: Some((self.grid.lo(), self.grid.hi())),
@@ -651,8 +811,11 @@ impl Behind {
             interpolated: true,
         };
         let (model, rep) = fit(&self.u, &h_star, &fo)?;
+        // The model's output on the output samples, through the dynamics.
+        let mut x = model.everett_values();
+        x.push(model.offset());
         let mut h = vec![0.0; n];
-        model.run_interpolated(&mut model.interp_memory(), &self.u, &mut h);
+        self.rows.forward(&x, &mut h);
         let mut y = vec![0.0; n];
         lti.apply(&h, &mut y);
         // Columns of the extra terms as they reach the output.
@@ -724,7 +887,8 @@ pub struct BehindOptions {
     pub u_range: (f64, f64),
     /// Sample period of `u` and `z` (s).
     pub dt: f64,
-    /// Stop when the preconditioned residual falls below `tol` times its initial value.
+    /// Stop when two iterations in a row lower the sum of squares by less than this
+    /// fraction of it.
     pub tol: f64,
     pub max_iter: usize,
 }
@@ -759,8 +923,8 @@ pub fn fit_behind(
         return Err(PreisachError::invalid("dt", format!("must be > 0, got {}", opts.dt)));
     }
     let mut lti = Cascade::new(blocks, opts.dt)?;
-    let mut b = Behind::new(u, opts.n_h, opts.u_range)?;
-    let terms = Terms { omega, pre: &[], post: &[] };
+    let mut b = Behind::new(u, opts.n_h, opts.u_range, 1)?;
+    let terms = Terms { omega, pre: &[], post: &[], delay: 0.0 };
     let sol = b.solve(z, &mut lti, &terms, opts.tol, opts.max_iter, false)?;
     let (model, _, rmse, projection) = b.project(&sol, z, &mut lti, &terms)?;
     let report = BehindReport {
