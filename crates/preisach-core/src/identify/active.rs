@@ -37,8 +37,8 @@
 //! interior point.)
 
 use super::ldl::{amd_order, Ldl, Pattern};
-use super::qp::{cell_coords, everett_objective, Problem, Solution};
-use super::rows::mass_from_everett;
+use super::qp::{everett_objective, Problem, Solution};
+use super::rows::everett_var;
 use crate::error::Result;
 
 /// Bordering instead of refactoring (see [`Border`]): at most this many changed
@@ -119,20 +119,31 @@ impl Kkt {
             }
             colptr[c + 1] = rowval.len();
         }
-        let cell_ij = cell_coords(pb.rows.n_h);
-        let mut d = Vec::new();
+        // The mass of cell (i, j) in Everett values, in increasing index order:
+        // −E(j, i) + E(j, i+1) + E(j+1, i) − E(j+1, i+1) (see `mass_from_everett`; the
+        // terms with a <= b vanish on and next to the diagonal).
         let mut dval = Vec::with_capacity(4 * m);
-        for (c, &(i, j)) in cell_ij.iter().enumerate() {
-            mass_from_everett(i, j, &mut d);
-            d.sort_unstable_by_key(|e| e.0);
-            for &(k, v) in &d {
-                rowval.push(k);
-                val.push(v);
-                dval.push(v);
+        let mut c = 0;
+        for i in 0..pb.rows.n_h {
+            for j in i..pb.rows.n_h {
+                let terms = [
+                    (j > i, everett_var_or0(j, i), -1.0),
+                    (j > i + 1, everett_var_or0(j, i + 1), 1.0),
+                    (true, everett_var(j + 1, i), 1.0),
+                    (j > i, everett_var_or0(j + 1, i + 1), -1.0),
+                ];
+                for &(present, k, v) in &terms {
+                    if present {
+                        rowval.push(k);
+                        val.push(v);
+                        dval.push(v);
+                    }
+                }
+                rowval.push(n + c);
+                val.push(0.0);
+                colptr[n + c + 1] = rowval.len();
+                c += 1;
             }
-            rowval.push(n + c);
-            val.push(0.0);
-            colptr[n + c + 1] = rowval.len();
         }
         let diag: Vec<usize> = (0..n + m).map(|c| colptr[c + 1] - 1).collect();
         Kkt { n, m, colptr, rowval, val, reg: vec![0.0; n + m], diag, dval }
@@ -185,6 +196,15 @@ impl Kkt {
         for (c, &p) in self.diag.iter().enumerate() {
             out[p] += self.reg[c];
         }
+    }
+}
+
+/// `everett_var(a, b)`, or 0 where a <= b (a term the caller drops).
+fn everett_var_or0(a: usize, b: usize) -> usize {
+    if a > b {
+        everett_var(a, b)
+    } else {
+        0
     }
 }
 

@@ -240,7 +240,9 @@ pub(super) fn everett_objective(pb: &Problem) -> (Vec<(u64, f64)>, Vec<f64>) {
     let n_q = rows.n_vars();
     let n = n_q + 1;
     let n_total = rows.n_samples as f64;
-    let mut trip: Vec<(u64, f64)> = Vec::new();
+    // One triplet per pair of entries in a row (the offset included).
+    let pairs: usize = rows.indptr.windows(2).map(|w| (w[1] - w[0] + 1) * (w[1] - w[0] + 2) / 2).sum();
+    let mut trip: Vec<(u64, f64)> = Vec::with_capacity(pairs);
     let mut q = vec![0.0; n];
     let mut ent: Vec<(usize, f64)> = Vec::new();
     for r in 0..rows.n_rows() {
