@@ -387,11 +387,12 @@ pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> R
         // New border columns are solved four at a time, at about two solves' cost.
         let new = changed.iter().filter(|&&c| !border.has(c)).count();
         let cost = 2.0 * new.div_ceil(4) as f64;
-        if base.is_some() && changed.len() <= BORDER_MAX && cost < BORDER_SHARE * fact.refactor_in_solves() {
-            if !border.update(&changed, &active, &kkt, &mut fact, eps) {
-                return Ok(None);
-            }
-        } else {
+        let bordered = base.is_some()
+            && changed.len() <= BORDER_MAX
+            && cost < BORDER_SHARE * fact.refactor_in_solves()
+            // (A singular Schur complement: refactor instead.)
+            && border.update(&changed, &active, &kkt, &mut fact, eps);
+        if !bordered {
             // Only the active constraints' rows: an inactive one is `−ν_c = 0`, decoupled.
             coupled[n..].copy_from_slice(&active);
             kkt.regularized(&mut kval);
