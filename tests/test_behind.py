@@ -8,7 +8,7 @@ import pytest
 from preisach import PreisachModel, _preisach
 from preisach.chain import apply_effects, partial_fractions
 from preisach.diagnose.effects import FitState, Record
-from preisach.diagnose.search import Fitter, calibrate_drift
+from preisach.diagnose.search import Fitter, calibrate_slow
 
 N_H = 5
 RANGE = (0.0, 1.0)
@@ -146,11 +146,28 @@ def test_adding_an_effect_never_fits_the_training_record_worse(drift_record):
         "offset_per_s"] == pytest.approx(-0.03 - 0.05 * 0.02, abs=2e-3)
 
 
-def test_drift_calibration_recovers_a_linear_drift_exactly(drift_record):
-    rec, w = drift_record
-    st = FitState(PreisachModel(w, RANGE, 0.1, "interpolated"), {"drift": {"gain_per_s": 0.0, "offset": 0.0,
-                                                                           "offset_per_s": 0.0}})
-    cal = calibrate_drift(st, [(rec, slice(None))])
+def test_slow_calibration_recovers_drift_and_creep_across_records():
+    """Drift runs on in absolute time, creep restarts with every record: calibrated across
+    records (masses and level fixed), both come back."""
+    w = np.triu(np.random.default_rng(9).uniform(0.2, 1.0, (N_H, N_H)))
+    model = PreisachModel(w, RANGE, 0.1, "interpolated")
+    truth = {"creep": {"taus_s": [0.3], "amplitudes": [0.05], "_norm": True},
+             "drift": {"gain_per_s": 0.02, "offset": 0.0, "offset_per_s": -0.03}}
+    recs = []
+    t0 = 0.0
+    for seed in (10, 11, 12):
+        t, u = _input(n=9000, seed=seed)
+        t = t + t0
+        t0 = t[-1] + DT
+        y = FitState(model, truth).predict(Record("r", t, u, np.zeros_like(t), DT))
+        recs.append(Record("r", t, u, y, DT))
+    st = FitState(model, {"creep": {"taus_s": [0.05], "amplitudes": [0.01], "_norm": True},
+                          "drift": {"gain_per_s": 0.0, "offset": 0.0, "offset_per_s": 0.0}})
+    cal = calibrate_slow(st, [(r, slice(None)) for r in recs])
     assert cal.effects["drift"]["gain_per_s"] == pytest.approx(0.02, rel=1e-3)
-    # The model's offset went into the drift's reference: compare predictions.
-    assert np.sqrt(np.mean((cal.predict(rec) - rec.y) ** 2)) < 2e-4
+    assert cal.effects["drift"]["offset_per_s"] == pytest.approx(-0.03, rel=1e-3)
+    # The time constant comes from a grid (which holds 0.3 s within a few percent).
+    assert cal.effects["creep"]["taus_s"][0] == pytest.approx(0.3, rel=0.3)
+    err = max(np.sqrt(np.mean((cal.predict(r) - r.y) ** 2)) for r in recs)
+    before = max(np.sqrt(np.mean((st.predict(r) - r.y) ** 2)) for r in recs)
+    assert err < 0.05 * before

@@ -127,3 +127,18 @@ fn fit_behind_rejects_bad_input_by_name() {
     let e = fit_behind(&u, &u, None, &[], &bad).unwrap_err().to_string();
     assert!(e.starts_with("dt:"), "{e}");
 }
+
+#[test]
+fn fused_cascade_equals_the_blocks_one_after_the_other() {
+    let mut rng = Rng::new(9);
+    let creep = LtiBlock { poles: vec![(-20.0, 0.0)], residues: vec![(-0.05 * 20.0, 0.0)], direct: 1.0 };
+    let blocks = [creep, mode(700.0, 0.01), mode(2300.0, 0.05), first_order(1e-4)];
+    let mut l = Cascade::new(&blocks, 2e-5).unwrap();
+    let x: Vec<f64> = (0..3000).map(|_| rng.range(-1.0, 1.0)).collect();
+    let (mut a, mut b) = (vec![0.0; x.len()], vec![0.0; x.len()]);
+    l.apply(&x, &mut a);
+    l.apply_blockwise(&x, &mut b);
+    for (p, q) in a.iter().zip(&b) {
+        assert!((p - q).abs() <= 1e-12 * (1.0 + q.abs()), "{p} vs {q}");
+    }
+}

@@ -26,7 +26,7 @@ from typing import Any, Optional
 import numpy as np
 from numpy.typing import NDArray
 
-from preisach.chain import apply_effects, delay_signal, partial_fractions, rate_term
+from preisach.chain import apply_effects, delay_signal, lti, partial_fractions, rate_term
 from preisach.diagnose.effects import FitState, Record, _grid_then_parabola, _mode_guess, _parabolic_search, rmse
 from preisach.model import PreisachModel
 
@@ -34,6 +34,16 @@ Effects = dict[str, dict[str, Any]]
 
 #: Shortest creep time constant searched: faster "creep" is a low-pass's business.
 CREEP_TAU_MIN = 5e-3
+#: Longest creep time constant searched, in training-record lengths: a longer one shows
+#: only its initial slope on the record, and the fit trades a large amplitude with a long
+#: time constant for it, which compresses the output towards its first value on any
+#: other record (the gain is 1 - amplitude until the element has moved).
+CREEP_TAU_MAX_RECORDS = 3.0
+#: The same across records (``calibrate_slow``): every record restarts the element, so
+#: the amplitude and the time constant separate better than on one record.
+CREEP_CAL_TAU_MAX_RECORDS = 10.0
+#: Largest creep amplitude searched (realistic stages creep 1-10 %).
+CREEP_AMP_MAX = 0.12
 
 #: Scalars polished per effect: (parameter, log scale?, lower bound, upper bound, first
 #: step: relative, or in log units). A mode's frequency needs small steps: a long
@@ -43,19 +53,22 @@ SCALARS: dict[str, list[tuple[str, bool, float, float, float]]] = {
     "delay": [("delay_s", False, 0.0, 5e-3, 0.1)],
     "lowpass": [("cutoff_hz", True, 10.0, 1e6, 0.1)],
     "vibration": [("frequency_hz", True, 50.0, 1e6, 0.002), ("damping", True, 1e-3, 0.5, 0.15)],
-    "creep": [("tau", True, CREEP_TAU_MIN, 100.0, 0.2), ("amp", False, 0.0, 0.5, 0.2)],
+    "creep": [("tau", True, CREEP_TAU_MIN, 100.0, 0.2), ("amp", False, 0.0, CREEP_AMP_MAX, 0.2)],
     "drift": [("gain_per_s", False, -0.5, 0.5, 0.1)],
     "rate": [("tau_s", True, 1e-3, 3e-2, 0.2)],
 }
 DYNAMIC = ("vibration", "lowpass")
 #: Effects whose parameters trade off against each other's (polished together): a delay
-#: and the dynamics share the lag; creep, drift and a low-pass all shape slow trends.
+#: and the dynamics share the lag; a low-pass and creep both shape the step response.
+#: (Creep and drift trade off too, but one record cannot tell them apart: polishing one
+#: against the other on it only wanders along the valley. Across records they separate,
+#: which is where ``calibrate_slow`` splits them.)
 COUPLED: dict[str, tuple[str, ...]] = {
     "delay": ("lowpass", "vibration"),
     "lowpass": ("delay", "vibration", "creep"),
     "vibration": ("delay", "lowpass"),
-    "creep": ("drift", "lowpass"),
-    "drift": ("creep",),
+    "creep": ("lowpass",),
+    "drift": (),
     "rate": (),
 }
 
@@ -231,6 +244,8 @@ class Fitter:
         step is the scalar's own, times ``scale``)."""
         _, logs, lo, hi, rel = next(s for s in SCALARS[name] if s[0] == key)
         rel *= scale
+        if name == "creep" and key == "tau":
+            hi = max(0.05, CREEP_TAU_MAX_RECORDS * float(self.rec.t[-1] - self.rec.t[0]))
         x0 = _get(eff, name, key)
         if logs:
             c = math.log(max(x0, 1e-300))
@@ -267,7 +282,8 @@ class Fitter:
         sh, fx = _grid_then_parabola(f, grid)
         return (self.split_lag(eff, sh), fx) if fx < self.J(eff) else (eff, self.J(eff))
 
-    def polish(self, eff: Effects, names: list[str], sweeps: int = 1, scale: float = 1.0) -> tuple[Effects, float]:
+    def polish(self, eff: Effects, names: list[str], sweeps: int = 1, scale: float = 1.0,
+               refine: int = 2) -> tuple[Effects, float]:
         """Coordinate steps on every scalar of ``names`` (the coupled effects re-balance),
         and along the delay/low-pass valley when the chain has both."""
         fx = self.J(eff)
@@ -278,8 +294,14 @@ class Fitter:
             for n in names:
                 if n not in eff:
                     continue
+                if n == "creep" and len(eff["creep"]["taus_s"]) > 1:
+                    continue  # a given chain's creep of several elements is kept
+                if n == "creep":
+                    lt = math.log(float(eff["creep"]["taus_s"][0]))
+                    eff, fx = self.line_creep(eff, [lt - 0.2 * scale, lt, lt + 0.2 * scale], refine)
+                    continue
                 for key, *_ in SCALARS[n]:
-                    eff, fx = self.line(eff, n, key, scale)
+                    eff, fx = self.line(eff, n, key, scale, refine)
             if fx > 0.999 * f0:
                 break
         return eff, fx
@@ -291,10 +313,13 @@ class Fitter:
         r = self.rec
         T = float(r.t[-1] - r.t[0])
         eff = {k: dict(p) for k, p in base.items()}
+        j_base = self.J(eff)
         if name == "delay":
             grid = np.concatenate([[0.0], np.geomspace(max(r.dt / 2, 1e-5), 3e-3, 11)])
             d, _ = _grid_then_parabola(lambda d: self.J(dict(eff, delay={"delay_s": d})), grid)
             eff["delay"] = {"delay_s": float(max(d, 0.0))}
+            if "lowpass" in eff:
+                eff, _ = self.line_lag(eff)  # the low-pass may have taken the delay's lag
         elif name == "lowpass":
             d0 = eff.get("delay", {}).get("delay_s", 0.0)
             best = None
@@ -324,7 +349,7 @@ class Fitter:
             gmax = min(0.1, 0.5 / max(T, 1e-9))
             g, _ = _grid_then_parabola(lambda g: self.J(dict(eff, drift={"gain_per_s": g, "offset": 0.0,
                                                                           "offset_per_s": 0.0})),
-                                       np.linspace(-gmax, gmax, 9))
+                                       np.linspace(-gmax, gmax, 7))
             eff["drift"] = {"gain_per_s": float(g), "offset": 0.0, "offset_per_s": 0.0}
         elif name == "rate":
             lt, _ = _grid_then_parabola(lambda lt: self.J(dict(eff, rate={"gain_s": 0.0, "tau_s": math.exp(lt)})),
@@ -336,10 +361,12 @@ class Fitter:
             eff["delay"] = {"delay_s": 0.0}  # the record's sub-sample timing (polished below)
         if "lowpass" in eff and name != "lowpass" and eff["lowpass"]["cutoff_hz"] > 0.4 / self.dt:
             del eff["lowpass"]  # a band-fit nuisance beyond what the fit resolves
+        if self.J(eff) >= j_base * (1 - 1e-4):
+            return self.with_linear(eff)  # its own search found nothing: no polish to pay for
         # The new effect and those it trades off against are polished together (the rest
         # of the chain stays; the chain found is polished as a whole at the end).
         names = [name] + [k for k in eff if k != name and (k in COUPLED[name] or name in COUPLED[k])]
-        eff, _ = self.polish(eff, names, sweeps=2)
+        eff, _ = self.polish(eff, names, sweeps=2, refine=1)
         if name == "lowpass":
             eff = self.other_order(eff)
         return self.with_linear(eff)
@@ -353,105 +380,156 @@ class Fitter:
         e2, f2 = self.polish(e2, ["lowpass", "delay"], sweeps=1)
         return e2 if f2 < self.J(eff) else eff
 
-    def creep_init(self, eff: Effects) -> tuple[float, float]:
-        """Creep (one element): a grid over the time constant (5 ms to 20x the record),
-        the amplitude by parabolic steps at each, all on the profiled error."""
+    def creep_amp(self, eff: Effects, tau: float, c0: float = 0.03) -> tuple[float, float]:
+        """The best creep amplitude for time constant ``tau`` (parabolic steps)."""
+        f = lambda c: self.J(dict(eff, creep={"taus_s": [float(tau)], "amplitudes": [c], "_norm": True}))  # noqa: E731
+        c, fx = _parabolic_search(f, [max(0.0, c0 - 0.02), c0, c0 + 0.02], 0.0, CREEP_AMP_MAX, refine=2, expand=4)
+        return float(c), fx
+
+    def line_creep(self, eff: Effects, lt_pts: list[float], refine: int = 2) -> tuple[Effects, float]:
+        """Creep's time constant searched with its amplitude refitted at every trial: the
+        two trade off along a curved valley (a longer element needs a larger amplitude),
+        which coordinate steps cross only slowly."""
         T = float(self.rec.t[-1] - self.rec.t[0])
-        best: Optional[tuple[float, float, float]] = None
-        for tau in np.geomspace(CREEP_TAU_MIN, max(0.05, 20 * T), 9):
-            f = lambda c, tau=tau: self.J(dict(eff, creep={"taus_s": [float(tau)], "amplitudes": [c],  # noqa: E731
-                                                           "_norm": True}))
-            c, fx = _parabolic_search(f, [0.0, 0.02, 0.05], 0.0, 0.5, refine=2, expand=3)
-            if best is None or fx < best[2]:
-                best = (float(tau), float(c), fx)
-        assert best is not None
-        return best[0], max(best[1], 1e-4)
+        hi = math.log(max(0.05, CREEP_TAU_MAX_RECORDS * T))
+        amps: dict[float, float] = {}
+        c0 = float(eff["creep"]["amplitudes"][0]) if "creep" in eff else 0.03
+
+        def f(lt: float) -> float:
+            c, fx = self.creep_amp(eff, math.exp(lt), c0)
+            amps[lt] = c
+            return fx
+
+        lo = math.log(CREEP_TAU_MIN)
+        pts = sorted({min(max(x, lo), hi) for x in lt_pts})
+        lt, fx = _parabolic_search(f, pts, lo, hi, refine=refine, expand=3)
+        e = dict(eff, creep={"taus_s": [float(math.exp(lt))], "amplitudes": [amps[lt]], "_norm": True})
+        return e, fx
+
+    def creep_init(self, eff: Effects) -> tuple[float, float]:
+        """Creep (one element): a grid over the time constant (5 ms to 3x the record), the
+        amplitude refitted at each, then parabolic steps around the best. Where the record
+        cannot tell time constants apart (the error equal to 2e-4 of it), the smallest
+        amplitude is taken: a long element with a large amplitude fits the record as well
+        and compresses every other one."""
+        T = float(self.rec.t[-1] - self.rec.t[0])
+        trials = []
+        for tau in np.geomspace(CREEP_TAU_MIN, max(0.05, CREEP_TAU_MAX_RECORDS * T), 8):
+            c, fx = self.creep_amp(eff, float(tau))
+            trials.append((fx, c, float(tau)))
+        best = min(trials)[0]
+        fx, c, tau = min((t for t in trials if t[0] <= best * (1 + 2e-4)), key=lambda t: t[1])
+        step = math.log(trials[1][2] / trials[0][2]) / 2
+        e, _ = self.line_creep(dict(eff, creep={"taus_s": [tau], "amplitudes": [c], "_norm": True}),
+                               [math.log(tau) - step, math.log(tau), math.log(tau) + step])
+        return float(e["creep"]["taus_s"][0]), max(float(e["creep"]["amplitudes"][0]), 1e-4)
 
     def mode_band(self, eff: Effects, h: Optional[NDArray[np.float64]]) -> Effects:
         """A lightly damped mode: frequency and damping fitted on the error in a band
         around the largest peaks of the residual spectrum (0.6x to 1.6x), with masses
         fixed. In the band a delay is a phase shift, a low-pass a phase shift and an
-        attenuation: when the chain has neither, one of them is fitted as a nuisance (an
-        unmodelled 0.3 ms puts a 1.5 kHz ringing out of phase). Returns the chain with
-        the mode (and the nuisance block)."""
+        attenuation, so the lag around the mode is fitted with it: either the chain's own
+        delay and low-pass are kept, or they are replaced by a nuisance fitted in the band
+        (a delay of 0 to 1.5 ms, or a first- or second-order low-pass of 100 Hz to 20 kHz:
+        an unmodelled 0.3 ms puts a 1.5 kHz ringing out of phase, and a low-pass taken in
+        first for a mode's lag hides the ringing). Every peak's fits are judged on the
+        profiled training error (the band ratio alone can prefer a broad peak fitted by a
+        heavily damped "mode"). Returns the chain with the mode (and the nuisance block)."""
         from preisach.diagnose.effects import _golden, _grid_then_golden
 
         t, y, dt = self.t, self.y, self.dt
         others = {k: v for k, v in eff.items() if k != "vibration"}
         if h is None:
-            h = self.hysteresis(self.state(others).model, others)
+            h = self.hysteresis(self.state(others).model, {})
         if "rate" in others:
-            h = h + self._delayed(rate_term(others["rate"], self._u, self.rec.dt), others)
+            h = h + self.coarse(rate_term(others["rate"], self._u, self.rec.dt))
         lin = {k: v for k, v in others.items() if k not in ("rate", "delay")}
-        base = apply_effects(lin, t, t, h, dt)
         n = y.size
         f = np.fft.rfftfreq(n, dt)
         ramp = np.linspace(0.0, 1.0, n)
+        om = 2 * np.pi * f
+        nyq = 0.5 / dt
 
         def spec(x: NDArray[np.float64]) -> NDArray[np.complex128]:
             return np.fft.rfft(x - x[0] - (x[-1] - x[0]) * ramp)
 
         Y = spec(y)
-        nyq = 0.5 / dt
-        nuisance = "delay" not in others and "lowpass" not in others
-        # Nuisance phase and gain in the band when the chain has no delay or low-pass yet:
-        # a delay (0 to 1.5 ms), or a first-order low-pass (100 Hz to 20 kHz), which also
-        # explains the band's attenuation (a mode behind a sensor filter).
-        dgrid = np.arange(0.0, 1.5e-3, 2e-5) if nuisance else np.zeros(1)
-        cgrid = np.geomspace(100.0, 2e4, 24) if nuisance else np.zeros(0)
-        found = [("delay", 0.0)]
-        B = spec(base)
-        om = 2 * np.pi * f
-        masks: dict[tuple[float, float], NDArray[np.intp]] = {}
-        phc: dict[tuple[float, float], NDArray[np.complex128]] = {}
+        # The chain as it is (its delay a phase factor), for the peaks and the variant
+        # that keeps its lag.
+        d0 = others.get("delay", {}).get("delay_s", 0.0)
+        base_keep = apply_effects(lin, t, t, h, dt)
+        B_keep = spec(base_keep) * np.exp(-1j * om * d0)
+        # Without its delay and low-pass, for the variant whose lag is fitted in the band.
+        B_free = spec(apply_effects({k: v for k, v in lin.items() if k != "lowpass"}, t, t, h, dt))
+        dgrid = np.arange(0.0, 1.5e-3, 2e-5)
+        cgrid = np.geomspace(100.0, 2e4, 24)
 
-        def band_err(p: dict[str, Any], m: tuple[float, float]) -> float:
-            # The mode's analog response times the rest of the chain's spectrum (the blocks
-            # commute): no simulation per trial; the profiled error judges the result. At
-            # most about 600 lines of the band (a mode's peak spans several at that).
-            if m not in masks:
-                idx = np.flatnonzero((f > m[0]) & (f < m[1]))
-                masks[m] = idx[::max(1, -(-idx.size // 600))]
-                w = om[masks[m]]
-                phc[m] = np.vstack([np.exp(-1j * np.outer(dgrid, w)), 1 / (1 + 1j * np.outer(1 / (2 * np.pi * cgrid), w))])
-            mk = masks[m]
-            w0, zt = 2 * np.pi * p["frequency_hz"], p["damping"]
-            P = w0 * w0 / (w0 * w0 - om[mk] ** 2 + 2j * zt * w0 * om[mk]) * B[mk]
-            errs = np.sum(np.abs(P[None, :] * phc[m] - Y[mk][None, :]) ** 2, axis=1)
-            k = int(np.argmin(errs))
-            found[0] = ("delay", float(dgrid[k])) if k < dgrid.size else ("lowpass", float(cgrid[k - dgrid.size]))
-            return float(errs[k])
+        def fit_variant(B: NDArray[np.complex128], nuisance: bool) -> Any:
+            found: list[tuple[str, float, int]] = [("delay", 0.0, 0)]
+            masks: dict[tuple[float, float], NDArray[np.intp]] = {}
+            phc: dict[tuple[float, float], NDArray[np.complex128]] = {}
 
-        def refine(f0: float, zeta: float, span: float) -> tuple[float, float, float, float]:
-            m = (0.6 * f0, 1.6 * f0)
-            lz, _ = _grid_then_golden(lambda lz: band_err({"frequency_hz": f0, "damping": math.exp(lz)}, m),
-                                      np.linspace(math.log(2e-3), math.log(0.3), 12), 8)
-            zeta = math.exp(lz)
-            lf, _ = _grid_then_golden(lambda lf: band_err({"frequency_hz": math.exp(lf), "damping": zeta}, m),
-                                      np.linspace(math.log(f0 * (1 - span)), math.log(min(f0 * (1 + span), 0.45 * nyq)),
-                                                  15), 8)
-            f0 = math.exp(lf)
-            lz, _ = _golden(lambda lz: band_err({"frequency_hz": f0, "damping": math.exp(lz)}, m),
-                            lz - 0.4, min(lz + 0.4, math.log(0.5)), 10)
-            zeta = math.exp(lz)
-            fx = band_err({"frequency_hz": f0, "damping": zeta}, m)
-            return f0, zeta, fx, found[0]
+            def band_err(p: dict[str, Any], m: tuple[float, float]) -> float:
+                # The mode's analog response times the rest of the chain's spectrum (the
+                # blocks commute): no simulation per trial. At most about 600 lines of the
+                # band (a mode's peak spans several at that).
+                if m not in masks:
+                    idx = np.flatnonzero((f > m[0]) & (f < m[1]))
+                    masks[m] = idx[::max(1, -(-idx.size // 600))]
+                    w = om[masks[m]]
+                    if nuisance:
+                        jw = 1j * np.outer(1 / (2 * np.pi * cgrid), w)  # j w / wc
+                        phc[m] = np.vstack([np.exp(-1j * np.outer(dgrid, w)), 1 / (1 + jw),
+                                            1 / (1 + np.sqrt(2.0) * jw + jw * jw)])
+                    else:
+                        phc[m] = np.ones((1, w.size), dtype=np.complex128)
+                mk = masks[m]
+                w0, zt = 2 * np.pi * p["frequency_hz"], p["damping"]
+                P = w0 * w0 / (w0 * w0 - om[mk] ** 2 + 2j * zt * w0 * om[mk]) * B[mk]
+                errs = np.sum(np.abs(P[None, :] * phc[m] - Y[mk][None, :]) ** 2, axis=1)
+                k = int(np.argmin(errs))
+                if not nuisance:
+                    pass
+                elif k < dgrid.size:
+                    found[0] = ("delay", float(dgrid[k]), 0)
+                else:
+                    k -= dgrid.size
+                    found[0] = ("lowpass", float(cgrid[k % cgrid.size]), 1 + k // cgrid.size)
+                return float(errs[int(np.argmin(errs))])
 
-        # Every peak's band fit (with its nuisance as a delay or a low-pass) is then judged
-        # on the profiled training error (the band ratio alone can prefer a broad peak
-        # fitted by a heavily damped "mode").
+            def refine(f0: float, span: float) -> tuple[float, float, tuple[str, float, int]]:
+                m = (0.6 * f0, 1.6 * f0)
+                lz, _ = _grid_then_golden(lambda lz: band_err({"frequency_hz": f0, "damping": math.exp(lz)}, m),
+                                          np.linspace(math.log(2e-3), math.log(0.3), 12), 8)
+                zeta = math.exp(lz)
+                lf, _ = _grid_then_golden(lambda lf: band_err({"frequency_hz": math.exp(lf), "damping": zeta}, m),
+                                          np.linspace(math.log(f0 * (1 - span)),
+                                                      math.log(min(f0 * (1 + span), 0.45 * nyq)), 15), 8)
+                f0 = math.exp(lf)
+                lz, _ = _golden(lambda lz: band_err({"frequency_hz": f0, "damping": math.exp(lz)}, m),
+                                lz - 0.4, min(lz + 0.4, math.log(0.5)), 10)
+                zeta = math.exp(lz)
+                band_err({"frequency_hz": f0, "damping": zeta}, m)
+                return f0, zeta, found[0]
+
+            return refine
+
+        variants = [(B_keep, False)]
+        if "delay" in others or "lowpass" in others or d0 == 0.0:
+            variants.append((B_free, True))
         best = None
-        for fc in (_mode_guess(y - base, dt, 3) or [1000.0]):
-            f1, z1, _, nz = refine(fc, 0.02, 0.03)
-            e = dict(eff, vibration={"frequency_hz": f1, "damping": z1})
-            if nuisance and nz[0] == "delay" and nz[1] > 0:
-                e["delay"] = {"delay_s": nz[1]}
-            elif nuisance and nz[0] == "lowpass":
-                e["lowpass"] = {"cutoff_hz": nz[1], "order": 1}
-                e["delay"] = {"delay_s": 0.0}
-            j = self.J(e)
-            if best is None or j < best[1]:
-                best = (e, j)
+        for fc in (_mode_guess(y - base_keep, dt, 3) or [1000.0]):
+            for B, nuisance in variants:
+                f1, z1, nz = fit_variant(B, nuisance)(fc, 0.03)
+                e = dict(eff, vibration={"frequency_hz": f1, "damping": z1})
+                if nuisance:
+                    e.pop("lowpass", None)
+                    e["delay"] = {"delay_s": nz[1] if nz[0] == "delay" else 0.0}
+                    if nz[0] == "lowpass":
+                        e["lowpass"] = {"cutoff_hz": nz[1], "order": nz[2]}
+                j = self.J(e)
+                if best is None or j < best[1]:
+                    best = (e, j)
         assert best is not None
         return best[0]
 
@@ -466,30 +544,116 @@ class Fitter:
         return self.with_linear(e)
 
 
-def calibrate_drift(st: FitState, data: list[tuple[Record, slice]]) -> FitState:
-    """The drift of a chain recalibrated on the time axis: with the masses and the other
-    effects fixed, ``y ~ a x + b x t + o + o'' t`` (``x`` the chain's output before the
-    drift block) is linear, solved on the given parts of records. A drift fitted on one
-    short record extrapolates poorly to later ones (its slope trades off against what the
-    masses absorb), so the diagnoser calibrates it on the training record and the other
-    half of each holdout (cross-fitting: no sample is scored with a drift fitted on it).
-    Returns the chain with the model scaled by ``a`` and the drift ``(b / a, o, o'')``."""
-    if "drift" not in st.effects:
+def normalized_creep(st: FitState) -> FitState:
+    """The chain with its creep in the DC-gain-1 form the search uses (``y = x + c (LP[x]
+    - x)``): a chain file's creep (``y = x + c LP[x]``, DC gain ``1 + S``) is the same
+    with the model scaled by ``1 + S`` and the amplitudes divided by it."""
+    cr = st.effects.get("creep")
+    if cr is None or cr.get("_norm"):
         return st
-    pre = FitState(st.model, {k: v for k, v in st.effects.items() if k != "drift"})
+    S = float(sum(cr["amplitudes"]))
+    eff = {k: dict(v) for k, v in st.effects.items()}
+    eff["creep"] = {"taus_s": list(cr["taus_s"]), "amplitudes": [c / (1 + S) for c in cr["amplitudes"]],
+                    "_norm": True}
+    if "rate" in eff:
+        eff["rate"]["gain_s"] = float(eff["rate"]["gain_s"] * (1 + S))
+    m = st.model
+    return FitState(PreisachModel(m.weights * (1 + S), m.u_range, m.offset * (1 + S), m.output), eff,
+                    st.train_rmse)
+
+
+def calibrate_slow(st: FitState, data: list[tuple[Record, slice]]) -> FitState:
+    """The slow effects of a chain (drift, creep) recalibrated across records, the masses
+    and the other effects fixed. One short training record cannot tell them apart: within
+    a record both are slow trends, and the masses absorb part of either. Across records
+    they differ (creep starts again at rest with every record, drift runs on in absolute
+    time), so the diagnoser calibrates them on the training record and the other half of
+    each holdout (two-fold cross-fitting: no sample is scored with parameters fitted on
+    it), and the saved chain on every record.
+
+    With ``x`` the chain's output without drift and creep (its masses fitted with the
+    drift, so referred to time 0), and ``k = LP_tau[x] - x`` the creep element's response
+    (at rest at each record's start; it commutes with the other linear blocks),
+    ``y - x ~ g t x + o'' t + c k`` is linear, solved for the creep's time constant on a
+    grid (and its current one) by least squares on the given parts. Only what changes
+    with time or restarts with the records is calibrated: the level and scale stay the
+    training record's (recalibrating them would credit any effect with a free
+    adjustment to the holdouts)."""
+    # A creep of several elements (a given baseline chain's) stays as it is.
+    creep = "creep" in st.effects and len(st.effects["creep"]["taus_s"]) == 1
+    if "drift" not in st.effects and not creep:
+        return st
+    if creep:
+        st = normalized_creep(st)
+    eff0 = st.effects
+    pre = FitState(st.model, {k: v for k, v in eff0.items() if k != "drift" and not (k == "creep" and creep)})
     xs, ts, ys = [], [], []
+    full_x: list[NDArray[np.float64]] = []
     for rec, sl in data:
-        xs.append(pre.predict(rec)[sl])
+        x = pre.predict(rec)
+        full_x.append(x)
+        xs.append(x[sl])
         ts.append(rec.t[sl])
         ys.append(rec.y[sl])
     x, t, y = np.concatenate(xs), np.concatenate(ts), np.concatenate(ys)
-    A = np.column_stack([x, x * t, np.ones_like(t), t])
-    (a, b, o, o2), *_ = np.linalg.lstsq(A, y, rcond=None)
-    if not (a > 0 and np.isfinite([a, b, o, o2]).all()):
+    drift = "drift" in eff0
+    base = [x * t, t] if drift else []
+    target = y - x - (eff0["drift"]["offset"] if drift else 0.0)
+
+    def solve(extra: list[NDArray[np.float64]]) -> tuple[NDArray[np.float64], float]:
+        A = np.column_stack(base + extra)
+        coef, *_ = np.linalg.lstsq(A, target, rcond=None)
+        return coef, float(np.sum((A @ coef - target) ** 2))
+
+    tau = None
+    if creep:
+        T = max(float(rec.t[-1] - rec.t[0]) for rec, _ in data)
+        fits: dict[float, tuple[NDArray[np.float64], float]] = {}
+
+        def sse_at(lt: float) -> float:
+            tk = math.exp(lt)
+            col = np.concatenate([(_lp(xf, tk, rec.dt) - xf)[sl] for xf, (rec, sl) in zip(full_x, data)])
+            # With a drift, its gain also scales the creep (the t k column).
+            coef, sse = solve([col, t * col] if drift else [col])
+            ci = -2 if drift else -1
+            if not 0.0 <= coef[ci] <= CREEP_AMP_MAX:
+                # The amplitude at its bound, the rest refitted (a clipped joint solution
+                # would leave the other coefficients compensating an amplitude not used).
+                cb = min(max(coef[ci], 0.0), CREEP_AMP_MAX)
+                A = np.column_stack(base) if base else np.zeros((t.size, 0))
+                r0 = target - cb * (col + (0.0 if not drift else 0.0))
+                if A.shape[1]:
+                    sub, *_ = np.linalg.lstsq(A, r0, rcond=None)
+                    sse = float(np.sum((A @ sub - r0) ** 2))
+                    coef = np.concatenate([sub, [cb, 0.0]])
+                else:
+                    sse = float(np.sum(r0 ** 2))
+                    coef = np.array([cb])
+            fits[lt] = (coef, sse)
+            return sse
+
+        grid = np.log(np.geomspace(CREEP_TAU_MIN, max(0.05, CREEP_CAL_TAU_MAX_RECORDS * T), 14))
+        lt, _ = _grid_then_parabola(sse_at, grid)
+        lt0 = math.log(float(eff0["creep"]["taus_s"][0]))
+        if sse_at(lt0) < fits[lt][1]:
+            lt = lt0
+        coef, tau = fits[lt][0], math.exp(lt)
+        if drift:
+            coef = coef[:-1]  # drop the t k coefficient (g c): the creep's is next to last
+    else:
+        coef, _ = solve([])
+    if not np.isfinite(coef).all():
         return st
-    eff = {k: dict(v) for k, v in st.effects.items()}
-    eff["drift"] = {"gain_per_s": float(b / a), "offset": float(o), "offset_per_s": float(o2)}
-    if "rate" in eff:
-        eff["rate"]["gain_s"] = float(eff["rate"]["gain_s"] * a)
-    m = st.model
-    return FitState(PreisachModel(m.weights * a, m.u_range, m.offset * a, m.output), eff, st.train_rmse)
+    eff = {k: dict(v) for k, v in eff0.items()}
+    if drift:
+        eff["drift"] = {"gain_per_s": float(coef[0]), "offset": float(eff0["drift"]["offset"]),
+                        "offset_per_s": float(coef[1])}
+    if tau is not None:
+        c = min(max(float(coef[-1]), 0.0), CREEP_AMP_MAX)
+        eff["creep"] = {"taus_s": [float(tau)], "amplitudes": [c], "_norm": True}
+    return FitState(st.model, eff, st.train_rmse)
+
+
+def _lp(x: NDArray[np.float64], tau: float, dt: float) -> NDArray[np.float64]:
+    """First-order low-pass ``1 / (1 + s tau)`` (DC gain 1), at rest at the start."""
+    return lti(x, dt, [complex(-1 / tau)], [complex(1 / tau)])

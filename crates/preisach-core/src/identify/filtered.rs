@@ -151,36 +151,98 @@ impl Lti {
     }
 }
 
-/// A cascade of blocks, first block applied first.
+/// A cascade of blocks, first block applied first. The blocks run fused in one pass over
+/// the samples (every pole's recursion advances each sample): the recursions are
+/// latency-bound, and independent ones in one loop overlap.
 #[derive(Debug, Clone)]
 pub struct Cascade {
     blocks: Vec<Lti>,
-    buf: Vec<f64>,
+    /// Poles of all blocks, in block order.
+    poles: Vec<Foh>,
+    /// Per block: poles `start..end` and the direct term.
+    spans: Vec<(usize, usize, f64)>,
+    // Scratch: pole states and each block's previous input.
+    z: Vec<C>,
+    prev: Vec<f64>,
 }
 
 impl Cascade {
     pub fn new(blocks: &[LtiBlock], dt: f64) -> Result<Self> {
         let blocks = blocks.iter().map(|b| Lti::new(b, dt)).collect::<Result<Vec<_>>>()?;
-        Ok(Cascade { blocks, buf: Vec::new() })
+        let mut poles = Vec::new();
+        let mut spans = Vec::with_capacity(blocks.len());
+        for b in &blocks {
+            let s = poles.len();
+            poles.extend(b.poles.iter().copied());
+            spans.push((s, poles.len(), b.direct));
+        }
+        let (np, nb) = (poles.len(), blocks.len());
+        Ok(Cascade { blocks, poles, spans, z: vec![C::new(0.0, 0.0); np], prev: vec![0.0; nb] })
+    }
+
+    /// The blocks one after the other (the reference the fused pass must equal).
+    pub fn apply_blockwise(&self, x: &[f64], y: &mut [f64]) {
+        y.copy_from_slice(x);
+        let mut buf = vec![0.0; x.len()];
+        for b in &self.blocks {
+            buf.copy_from_slice(y);
+            b.apply(&buf, y);
+        }
     }
 
     /// `y = L x` (identity for an empty cascade).
     pub fn apply(&mut self, x: &[f64], y: &mut [f64]) {
-        y.copy_from_slice(x);
-        self.buf.resize(x.len(), 0.0);
-        for b in &self.blocks {
-            self.buf.copy_from_slice(y);
-            b.apply(&self.buf, y);
+        if self.spans.is_empty() || x.is_empty() {
+            y.copy_from_slice(x);
+            return;
+        }
+        let (poles, z, prev) = (&self.poles, &mut self.z, &mut self.prev);
+        for (n, (&xn, o)) in x.iter().zip(y.iter_mut()).enumerate() {
+            let mut v = xn;
+            for (b, &(s, e, d)) in self.spans.iter().enumerate() {
+                let mut out = d * v;
+                if n == 0 {
+                    for (f, zp) in poles[s..e].iter().zip(&mut z[s..e]) {
+                        *zp = f.init * v;
+                        out += (f.g * *zp).re;
+                    }
+                } else {
+                    let vp = prev[b];
+                    for (f, zp) in poles[s..e].iter().zip(&mut z[s..e]) {
+                        *zp = f.a * *zp + f.b0 * vp + f.b1 * v;
+                        out += (f.g * *zp).re;
+                    }
+                }
+                prev[b] = v;
+                v = out;
+            }
+            *o = v;
         }
     }
 
-    /// `x = Lᵀ w`: the blocks' adjoints in reverse order.
+    /// `x = Lᵀ w`: the blocks' adjoints in reverse order (fused, backwards in time; see
+    /// [`Lti::adjoint`]).
     pub fn adjoint(&mut self, w: &[f64], x: &mut [f64]) {
-        x.copy_from_slice(w);
-        self.buf.resize(w.len(), 0.0);
-        for b in self.blocks.iter().rev() {
-            self.buf.copy_from_slice(x);
-            b.adjoint(&self.buf, x);
+        if self.spans.is_empty() || w.is_empty() {
+            x.copy_from_slice(w);
+            return;
+        }
+        let (poles, g_next) = (&self.poles, &mut self.z);
+        g_next.iter_mut().for_each(|g| *g = C::new(0.0, 0.0));
+        for m in (0..w.len()).rev() {
+            let mut v = w[m];
+            for &(s, e, d) in self.spans.iter().rev() {
+                let mut out = d * v;
+                for (f, gn) in poles[s..e].iter().zip(&mut g_next[s..e]) {
+                    let gm = f.g * v + f.a * *gn;
+                    let mut t = f.b0 * *gn;
+                    t += if m == 0 { f.init * gm } else { f.b1 * gm };
+                    out += t.re;
+                    *gn = gm;
+                }
+                v = out;
+            }
+            x[m] = v;
         }
     }
 }
