@@ -143,6 +143,48 @@ def test_parabolic_search_finds_smooth_and_kinked_minima_in_few_evaluations():
     assert abs(x + 0.013) < 1e-6
 
 
+def test_mode_guess_returns_the_k_largest_peaks():
+    from preisach.diagnose.effects import _mode_guess
+
+    dt = 1e-5
+    t = np.arange(200_000) * dt
+    rng = np.random.default_rng(3)
+    r = 0.02 * rng.standard_normal(t.size)
+    for f0, a in ((700.0, 1.0), (1900.0, 0.5), (4100.0, 0.25), (9000.0, 0.12)):
+        r += a * np.sin(2 * np.pi * f0 * t)
+    for k in (1, 3):
+        got = _mode_guess(r, dt, k)
+        assert len(got) == k  # (a smoothing width once overwrote k: 16 peaks, 16 fits)
+        want = [700.0, 1900.0, 4100.0][:k]
+        assert sorted(abs(g - w) < 30.0 for g, w in zip(sorted(got), sorted(want))) == [True] * k
+
+
+def test_creep_amplitude_search_finds_a_small_amplitude():
+    """The amplitude search starts from no creep (its error known) and must find an
+    amplitude below its first trial point (a 1 % creep: the trial at 3 % overshoots)."""
+    from preisach import PreisachModel
+    from preisach.chain import Chain
+    from preisach.diagnose.effects import Record
+    from preisach.diagnose.search import Fitter
+
+    st = bv.make_stage(20, ("creep",))  # 1.6 % over 0.17 s
+    tr = st["train"]
+    rec = Record("train", tr["t"], tr["u"], tr["y"], float(tr["t"][1] - tr["t"][0]))
+    u = tr["u"]
+    pad = 0.05 * float(np.ptp(u))
+    f = Fitter(rec, 30, (float(u.min()) - pad, float(u.max()) + pad), 4)
+    tau = float(st["params"]["creep"]["taus_s"][0])
+    c_true = float(st["params"]["creep"]["amplitudes"][0])
+    c, j = f.creep_amp({}, tau, c0=0.06)  # trial points 0.02 and 0.06: both too large
+    # Oracle: the profiled error on a fine grid of amplitudes.
+    grid = np.linspace(0.0, 0.04, 81)
+    js = [f.J({"creep": {"taus_s": [tau], "amplitudes": [float(g)], "_norm": True}}) for g in grid]
+    best = float(grid[int(np.argmin(js))])
+    assert 0.0 < best < 0.02 and abs(c - best) <= 0.0015
+    assert j <= min(js) + 1e-3 * (f.J({}) - min(js))
+    assert 0.5 * c_true < c < 1.5 * c_true
+
+
 @pytest.mark.parametrize("names,seed", [
     (("delay", "lowpass"), 1019),     # one low-pass with all the lag fits almost as well
     (("lowpass", "vibration"), 1016),  # neither alone beats a delay in the first round

@@ -1,5 +1,5 @@
 """Type stubs of the compiled module `preisach._preisach` (checked by mypy.stubtest)."""
-from typing import Any, Optional
+from typing import Any, Optional, Sequence
 
 from typing_extensions import final
 
@@ -7,7 +7,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 __version__: str
-__all__ = ["__version__", "Model", "Stream", "fit", "fit_behind", "Behind", "regression_rows", "invert", "InverseStream", "Chain", "run_loop"]
+__all__ = ["__version__", "Model", "Stream", "fit", "fit_behind", "lti", "Behind", "regression_rows", "invert", "InverseStream", "Chain", "run_loop"]
 
 # --- core (model, stream, identification) ---
 @final
@@ -55,6 +55,14 @@ def fit_behind(
     tol: float = 1e-6,
     max_iter: int = 200,
 ) -> tuple[Model, dict[str, Any]]: ...
+def lti(
+    x: NDArray[np.float64],
+    dt: float,
+    poles: Sequence[tuple[float, float]],
+    residues: Sequence[tuple[float, float]],
+    direct: float = 0.0,
+) -> NDArray[np.float64]: ...
+
 @final
 class Behind:
     def __new__(cls, u: NDArray[np.float64], n_h: int, u_range: tuple[float, float], stride: int = 1) -> Behind: ...

@@ -46,77 +46,17 @@ ORDER = tuple(EFFECT_PARAMS)
 # --------------------------------------------------------------------------------------
 # Exact simulation of linear blocks given as partial fractions.
 # --------------------------------------------------------------------------------------
-def _first_order(x: NDArray[np.float64], p: complex, dt: float) -> NDArray[np.complex128]:
-    """State of ``z' = p z + x`` sampled at the samples of ``x`` (x linear between
-    samples), starting at rest (``z = -x[0] / p``).
-
-    The recursion ``z[n] = a z[n-1] + b0 x[n-1] + b1 x[n]`` is solved in blocks with a
-    cumulative sum of ``a^-k v[k]`` (vectorized; a Python loop over 10^6 samples is far
-    too slow). Blocks are short enough that ``|a|^-L`` stays below e^40, which keeps the
-    rounding error at the level of the current terms. All blocks are summed at once (one
-    2-D cumulative sum); the carry from block to block decays by ``|a|^L < e^-20``, so
-    it is a sum of at most a few shifted block ends (no loop over blocks)."""
-    n = x.size
-    pT = complex(p) * dt
-    a = complex(np.exp(pT))
-    if abs(pT) < 1e-4:
-        # Series forms: the closed forms cancel catastrophically for tiny |pT|.
-        i0 = dt * (1 + pT / 2 + pT * pT / 6)
-        i1 = dt * (0.5 + pT / 6 + pT * pT / 24)
-    else:
-        i0 = (a - 1) / p
-        i1 = (a - 1) / (p * p * dt) - 1 / p
-    xprev = np.empty_like(x)
-    xprev[0] = x[0]
-    xprev[1:] = x[:-1]
-    v = (i0 - i1) * xprev + i1 * x
-    state = -x[0] / complex(p)
-    re = max(-pT.real, 1e-300)
-    L = int(min(n, max(1, math.floor(40.0 / re)))) if re > 0 else n
-    k = np.arange(1, L + 1)
-    apow_neg = np.exp(-pT * k)        # a^-(k)
-    apow_pos = np.exp(pT * k)         # a^(k)
-    if L >= n:
-        return apow_pos[:n] * (state + np.cumsum(apow_neg[:n] * v))
-    nb = -(-n // L)
-    V = np.zeros(nb * L, dtype=np.complex128)
-    V[:n] = v
-    V = V.reshape(nb, L)
-    # Within each block, from rest: loc[b, j] = sum_{i <= j} a^(j - i) V[b, i].
-    loc = apow_pos[None, :] * np.cumsum(apow_neg[None, :] * V, axis=1)
-    # Block ends with the carries: c[b] = loc[b, L-1] + A c[b-1], c[-1] = state,
-    # A = a^L; terms below 1e-18 of their source are dropped.
-    A = complex(apow_pos[L - 1])
-    last = loc[:, L - 1]
-    carry = last.copy()
-    term = last
-    absA = abs(A)
-    nterm = 1 if absA == 0 else int(min(nb, math.ceil(41.5 / max(-math.log(absA), 1e-300))))
-    for _ in range(nterm):
-        term = np.concatenate(([0.0], A * term[:-1]))
-        if not np.any(term):
-            break
-        carry += term
-    carry += state * np.exp(pT * L * np.arange(1, nb + 1))  # state A^(b+1)
-    prev = np.concatenate(([state], carry[:-1]))
-    z = loc + apow_pos[None, :] * prev[:, None]
-    return z.ravel()[:n]
-
-
 def lti(x: ArrayLike, dt: float, poles: Sequence[complex], residues: Sequence[complex],
         direct: float = 0.0) -> NDArray[np.float64]:
     """Output of ``H(s) = direct + sum r_k / (s - p_k)`` for input ``x`` sampled every
     ``dt`` seconds, starting at rest. Poles must be stable; a complex pole stands for
     itself and its conjugate (pass one of each pair)."""
-    xx = np.asarray(x, dtype=np.float64)
-    y = direct * xx
-    for p, r in zip(poles, residues):
-        z = _first_order(xx, complex(p), dt)
-        if abs(complex(p).imag) > 0:
-            y = y + 2.0 * (complex(r) * z).real
-        else:
-            y = y + (complex(r) * z).real
-    return y
+    from preisach import _preisach
+
+    xx = np.ascontiguousarray(x, dtype=np.float64)
+    ps = [(complex(p).real, complex(p).imag) for p in poles]
+    rs = [(complex(r).real, complex(r).imag) for r in residues]
+    return _preisach.lti(xx, float(dt), ps, rs, float(direct))
 
 
 def butterworth_pf(cutoff_hz: float, order: int) -> tuple[list[complex], list[complex]]:

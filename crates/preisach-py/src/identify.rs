@@ -8,7 +8,7 @@ use std::sync::Mutex;
 
 use numpy::{PyReadonlyArray2, PyUntypedArrayMethods};
 use preisach_core::identify::filtered::{
-    fit_behind as core_fit_behind, Behind as CoreBehind, BehindOptions, Cascade, LtiBlock, Terms,
+    fit_behind as core_fit_behind, Behind as CoreBehind, BehindOptions, Cascade, Lti, LtiBlock, Terms,
 };
 use pyo3::exceptions::PyValueError;
 use preisach_core::identify::{build_rows, fit as core_fit, FitOptions, Solver};
@@ -108,6 +108,30 @@ fn regression_rows<'py>(
 /// A linear block as partial fractions: (poles, residues, direct), each pole and residue
 /// a (re, im) pair; a complex pole stands for its conjugate pair.
 type BlockArg = (Vec<(f64, f64)>, Vec<(f64, f64)>, f64);
+
+/// Output of one linear block (partial fractions) for input `x` sampled every `dt`
+/// seconds, the input linear between samples, starting at rest: `preisach.chain.lti`.
+#[pyfunction]
+#[pyo3(signature = (x, dt, poles, residues, direct=0.0))]
+fn lti<'py>(
+    py: Python<'py>,
+    x: PyReadonlyArray1<'py, f64>,
+    dt: f64,
+    poles: Vec<(f64, f64)>,
+    residues: Vec<(f64, f64)>,
+    direct: f64,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    guard(|| {
+        let x = slice("x", &x)?;
+        let block = Lti::new(&LtiBlock { poles, residues, direct }, dt).map_err(to_py)?;
+        let y = py.detach(|| {
+            let mut y = vec![0.0; x.len()];
+            block.apply(x, &mut y);
+            y
+        });
+        Ok(y.into_pyarray(py))
+    })
+}
 
 /// Fit the interpolated model's masses behind a cascade of linear blocks (the
 /// diagnoser's augmented chains); returns (Model, report dict).
@@ -248,6 +272,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Behind>()?;
     m.add_function(wrap_pyfunction!(fit, m)?)?;
     m.add_function(wrap_pyfunction!(fit_behind, m)?)?;
+    m.add_function(wrap_pyfunction!(lti, m)?)?;
     m.add_function(wrap_pyfunction!(regression_rows, m)?)?;
     Ok(())
 }

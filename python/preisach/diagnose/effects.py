@@ -145,8 +145,8 @@ def _mode_guess(r: NDArray[np.float64], dt: float, k: int = 3) -> list[float]:
     ok = (f > 300) & (f < 0.4 / dt)
     # Whiten by a smooth trend so a broadband low-frequency residual does not win.
     logp = np.log(psd[ok] + 1e-300)
-    k = max(3, ok.sum() // 40)
-    trend = np.convolve(logp, np.ones(k) / k, mode="same")
+    kw = max(3, ok.sum() // 40)
+    trend = np.convolve(logp, np.ones(kw) / kw, mode="same")
     ex = logp - trend
     out: list[float] = []
     df = f[1] - f[0]

@@ -137,6 +137,10 @@ class Fitter:
         self.t = window_mean(rec.t, self.stride)
         self.y = window_mean(rec.y, self.stride)
         self.dt = rec.dt * self.stride
+        #: A fitter on longer windows for the slow effects' own searches (creep, drift:
+        #: the window average is exact for any chain, and a slow trend's error landscape
+        #: is the same on it at a fraction of the cost); their polish runs here.
+        self.slow: Optional[Fitter] = None
 
     def coarse(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """A full-rate signal of the training record, averaged like the fit's target."""
@@ -343,12 +347,13 @@ class Fitter:
         elif name == "vibration":
             eff = self.mode_band(eff, h)
         elif name == "creep":
-            tau, c = self.creep_init(eff)
+            tau, c = (self.slow or self).creep_init(eff)
             eff["creep"] = {"taus_s": [tau], "amplitudes": [c], "_norm": True}
         elif name == "drift":
             gmax = min(0.1, 0.5 / max(T, 1e-9))
-            g, _ = _grid_then_parabola(lambda g: self.J(dict(eff, drift={"gain_per_s": g, "offset": 0.0,
-                                                                          "offset_per_s": 0.0})),
+            jd = (self.slow or self).J
+            g, _ = _grid_then_parabola(lambda g: jd(dict(eff, drift={"gain_per_s": g, "offset": 0.0,
+                                                                      "offset_per_s": 0.0})),
                                        np.linspace(-gmax, gmax, 7))
             eff["drift"] = {"gain_per_s": float(g), "offset": 0.0, "offset_per_s": 0.0}
         elif name == "rate":
@@ -380,10 +385,24 @@ class Fitter:
         e2, f2 = self.polish(e2, ["lowpass", "delay"], sweeps=1)
         return e2 if f2 < self.J(eff) else eff
 
-    def creep_amp(self, eff: Effects, tau: float, c0: float = 0.03) -> tuple[float, float]:
-        """The best creep amplitude for time constant ``tau`` (parabolic steps)."""
+    def creep_amp(self, eff: Effects, tau: float, c0: float = 0.03, refine: int = 2) -> tuple[float, float]:
+        """The best creep amplitude for time constant ``tau`` (parabolic steps; amplitude
+        0 is the chain without creep, whose error is known)."""
         f = lambda c: self.J(dict(eff, creep={"taus_s": [float(tau)], "amplitudes": [c], "_norm": True}))  # noqa: E731
-        c, fx = _parabolic_search(f, [max(0.0, c0 - 0.02), c0, c0 + 0.02], 0.0, CREEP_AMP_MAX, refine=2, expand=4)
+        c0 = min(max(c0, 0.01), 0.5 * CREEP_AMP_MAX)
+        a, b = c0 / 3, c0
+        known = {0.0: self.J({k: v for k, v in eff.items() if k != "creep"})}
+        c, fx = _parabolic_search(f, [0.0, a, b], 0.0, CREEP_AMP_MAX, refine=refine, expand=4, known=known)
+        if c == 0.0:
+            # Best at no creep: the parabola through 0, a, b may still dip inside (0, a).
+            fa, fb = f(a), f(b)
+            den = b * (fa - known[0.0]) - a * (fb - known[0.0])
+            if den > 0:
+                v = 0.5 * (b * b * (fa - known[0.0]) - a * a * (fb - known[0.0])) / den
+                if 0.02 * a < v < a:
+                    fv = f(v)
+                    if fv < fx:
+                        c, fx = v, fv
         return float(c), fx
 
     def line_creep(self, eff: Effects, lt_pts: list[float], refine: int = 2) -> tuple[Effects, float]:
@@ -415,7 +434,7 @@ class Fitter:
         T = float(self.rec.t[-1] - self.rec.t[0])
         trials = []
         for tau in np.geomspace(CREEP_TAU_MIN, max(0.05, CREEP_TAU_MAX_RECORDS * T), 8):
-            c, fx = self.creep_amp(eff, float(tau))
+            c, fx = self.creep_amp(eff, float(tau), refine=1)
             trials.append((fx, c, float(tau)))
         best = min(trials)[0]
         fx, c, tau = min((t for t in trials if t[0] <= best * (1 + 2e-4)), key=lambda t: t[1])
@@ -484,8 +503,11 @@ class Fitter:
                     else:
                         phc[m] = np.ones((1, w.size), dtype=np.complex128)
                 mk = masks[m]
-                w0, zt = 2 * np.pi * p["frequency_hz"], p["damping"]
-                P = w0 * w0 / (w0 * w0 - om[mk] ** 2 + 2j * zt * w0 * om[mk]) * B[mk]
+                if p is None:
+                    P = B[mk]  # no mode: the band error to compare with
+                else:
+                    w0, zt = 2 * np.pi * p["frequency_hz"], p["damping"]
+                    P = w0 * w0 / (w0 * w0 - om[mk] ** 2 + 2j * zt * w0 * om[mk]) * B[mk]
                 errs = np.sum(np.abs(P[None, :] * phc[m] - Y[mk][None, :]) ** 2, axis=1)
                 k = int(np.argmin(errs))
                 if not nuisance:
@@ -497,7 +519,7 @@ class Fitter:
                     found[0] = ("lowpass", float(cgrid[k % cgrid.size]), 1 + k // cgrid.size)
                 return float(errs[int(np.argmin(errs))])
 
-            def refine(f0: float, span: float) -> tuple[float, float, tuple[str, float, int]]:
+            def refine(f0: float, span: float) -> tuple[float, float, tuple[str, float, int], float]:
                 m = (0.6 * f0, 1.6 * f0)
                 lz, _ = _grid_then_golden(lambda lz: band_err({"frequency_hz": f0, "damping": math.exp(lz)}, m),
                                           np.linspace(math.log(2e-3), math.log(0.3), 12), 8)
@@ -509,27 +531,36 @@ class Fitter:
                 lz, _ = _golden(lambda lz: band_err({"frequency_hz": f0, "damping": math.exp(lz)}, m),
                                 lz - 0.4, min(lz + 0.4, math.log(0.5)), 10)
                 zeta = math.exp(lz)
-                band_err({"frequency_hz": f0, "damping": zeta}, m)
-                return f0, zeta, found[0]
+                none = band_err(None, m)
+                err = band_err({"frequency_hz": f0, "damping": zeta}, m)
+                return f0, zeta, found[0], err / max(none, 1e-300)
 
             return refine
 
         variants = [(B_keep, False)]
         if "delay" in others or "lowpass" in others or d0 == 0.0:
             variants.append((B_free, True))
-        best = None
-        for fc in (_mode_guess(y - base_keep, dt, 3) or [1000.0]):
+        # Band fits on the 16 largest peaks (cheap: no simulation); the profiled training
+        # error then judges the four whose mode explains the largest share of their band
+        # (a drive's harmonics and the noise's top end make peaks too, which a light
+        # mode explains poorly).
+        fits = []
+        for fc in (_mode_guess(y - base_keep, dt, 16) or [1000.0]):
             for B, nuisance in variants:
-                f1, z1, nz = fit_variant(B, nuisance)(fc, 0.03)
-                e = dict(eff, vibration={"frequency_hz": f1, "damping": z1})
-                if nuisance:
-                    e.pop("lowpass", None)
-                    e["delay"] = {"delay_s": nz[1] if nz[0] == "delay" else 0.0}
-                    if nz[0] == "lowpass":
-                        e["lowpass"] = {"cutoff_hz": nz[1], "order": nz[2]}
-                j = self.J(e)
-                if best is None or j < best[1]:
-                    best = (e, j)
+                f1, z1, nz, ratio = fit_variant(B, nuisance)(fc, 0.03)
+                fits.append((z1 > 0.15, ratio, f1, z1, nz, nuisance))
+        fits.sort(key=lambda x: (x[0], x[1]))
+        best = None
+        for _, _, f1, z1, nz, nuisance in fits[:4]:
+            e = dict(eff, vibration={"frequency_hz": f1, "damping": z1})
+            if nuisance:
+                e.pop("lowpass", None)
+                e["delay"] = {"delay_s": nz[1] if nz[0] == "delay" else 0.0}
+                if nz[0] == "lowpass":
+                    e["lowpass"] = {"cutoff_hz": nz[1], "order": nz[2]}
+            j = self.J(e)
+            if best is None or j < best[1]:
+                best = (e, j)
         assert best is not None
         return best[0]
 
