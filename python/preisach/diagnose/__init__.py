@@ -382,7 +382,9 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
         fut = ex.submit(finer, cur) if disc else None
         pre_score, pre_parts = cur_score, cur_parts
         if fine is not fitter and (accepted or base_effects):
-            eff, _ = fine.polish(dict(cur.effects), list(cur.effects), sweeps=1, scale=0.5)
+            # (Local steps only: the valley between a delay and a low-pass was searched on the
+            # coarser average.)
+            eff, _ = fine.polish(dict(cur.effects), list(cur.effects), sweeps=1, scale=0.5, refine=1, valley=False)
             pol = fine.state(eff)
             ps, pparts = score_parts(pol)
             say(f"refit at {1 / fine.dt:.0f} Hz: holdout RMSE {ps:.4g} (was {cur_score:.4g})")

@@ -287,13 +287,13 @@ class Fitter:
         return (self.split_lag(eff, sh), fx) if fx < self.J(eff) else (eff, self.J(eff))
 
     def polish(self, eff: Effects, names: list[str], sweeps: int = 1, scale: float = 1.0,
-               refine: int = 2) -> tuple[Effects, float]:
+               refine: int = 2, valley: bool = True) -> tuple[Effects, float]:
         """Coordinate steps on every scalar of ``names`` (the coupled effects re-balance),
-        and along the delay/low-pass valley when the chain has both."""
+        and along the delay/low-pass valley when the chain has both (``valley``)."""
         fx = self.J(eff)
         for _ in range(sweeps):
             f0 = fx
-            if "delay" in eff and "lowpass" in eff and ("delay" in names or "lowpass" in names):
+            if valley and "delay" in eff and "lowpass" in eff and ("delay" in names or "lowpass" in names):
                 eff, fx = self.line_lag(eff)
             for n in names:
                 if n not in eff:
@@ -318,7 +318,11 @@ class Fitter:
         T = float(r.t[-1] - r.t[0])
         eff = {k: dict(p) for k, p in base.items()}
         j_base = self.J(eff)
-        if name == "delay":
+        if name == "delay" and "delay" in eff and any(k in eff for k in DYNAMIC):
+            # The chain's timing delay was searched with its dynamics (and polished with
+            # them): only a narrow search, the dynamics re-balanced below.
+            eff, _ = self.line(eff, "delay", "delay_s", 3.0)
+        elif name == "delay":
             grid = np.concatenate([[0.0], np.geomspace(max(r.dt / 2, 1e-5), 3e-3, 11)])
             d, _ = _grid_then_parabola(lambda d: self.J(dict(eff, delay={"delay_s": d})), grid)
             eff["delay"] = {"delay_s": float(max(d, 0.0))}
