@@ -16,25 +16,14 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use preisach_core::invert::{invert, Method};
-use preisach_core::{Grid, PreisachModel};
+use preisach_core::PreisachModel;
 
 const FS: f64 = 100_000.0;
 const T: usize = 100_000;
 
-fn smooth_model(n_h: usize) -> PreisachModel {
-    let grid = Grid::new(0.0, 100.0, n_h).unwrap();
-    let n = n_h as f64;
-    let mut masses = Vec::with_capacity(grid.n_q());
-    for i in 0..n_h {
-        for j in i..n_h {
-            let c = (j - i) as f64 / n;
-            let m = (i + j) as f64 / (2.0 * n) - 0.5;
-            let d = if i == j { 2.0 } else { 0.0 };
-            masses.push(((-(c - 0.15).powi(2) / 0.02 - m * m / 0.1).exp() + d) / n);
-        }
-    }
-    PreisachModel::new(grid, masses, 0.0).unwrap()
-}
+#[path = "common.rs"]
+mod common;
+use common::smooth_model;
 
 fn references(model: &PreisachModel) -> [(&'static str, Vec<f64>); 2] {
     let total = model.everett().total();

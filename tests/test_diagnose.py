@@ -21,6 +21,18 @@ def _rec(r):
     return {k: r[k] for k in "tuy"}
 
 
+def _blind_errors(rep, st):
+    """RMSE of the augmented chain and of the baseline on the stage's unseen record."""
+    from preisach import PreisachModel
+
+    b = st["blind"]
+    ch = Chain.from_dict(rep.augmented_chain_dict())
+    base = PreisachModel.from_dict(rep.baseline_model_dict())
+    e_aug = np.sqrt(np.mean((ch.predict(b["t"], b["u"]) - b["y"]) ** 2))
+    e_base = np.sqrt(np.mean((base.predict(b["u"]) - b["y"]) ** 2))
+    return e_aug, e_base
+
+
 @pytest.fixture(scope="module")
 def delay_stage():
     return bv.make_stage(11, ("delay",))
@@ -108,13 +120,7 @@ def test_small_blind_validation(names, seed):
         # One element recovered: time constant and gain within 25 %.
         assert abs(got["creep"]["taus_s"][0] / true["taus_s"][0] - 1) < 0.25
         assert abs(got["creep"]["amplitudes"][0] / true["amplitudes"][0] - 1) < 0.25
-    b = st["blind"]
-    ch = Chain.from_dict(rep.augmented_chain_dict())
-    from preisach import PreisachModel
-
-    base = PreisachModel.from_dict(rep.baseline_model_dict())
-    e_aug = np.sqrt(np.mean((ch.predict(b["t"], b["u"]) - b["y"]) ** 2))
-    e_base = np.sqrt(np.mean((base.predict(b["u"]) - b["y"]) ** 2))
+    e_aug, e_base = _blind_errors(rep, st)
     # The goal: realised shrink >= 70 % on the unseen record.
     assert e_aug < 0.3 * e_base
 
@@ -201,13 +207,7 @@ def test_pairs_are_both_found(names, seed):
         assert abs(got["delay"]["delay_s"] / st["params"]["delay"]["delay_s"] - 1) < 0.10
     if "vibration" in names:
         assert abs(got["vibration"]["frequency_hz"] / st["params"]["vibration"]["frequency_hz"] - 1) < 0.03
-    b = st["blind"]
-    ch = Chain.from_dict(rep.augmented_chain_dict())
-    from preisach import PreisachModel
-
-    base = PreisachModel.from_dict(rep.baseline_model_dict())
-    e_aug = np.sqrt(np.mean((ch.predict(b["t"], b["u"]) - b["y"]) ** 2))
-    e_base = np.sqrt(np.mean((base.predict(b["u"]) - b["y"]) ** 2))
+    e_aug, e_base = _blind_errors(rep, st)
     assert e_aug < 0.3 * e_base
 
 
