@@ -149,6 +149,41 @@ def test_parabolic_search_finds_smooth_and_kinked_minima_in_few_evaluations():
     assert abs(x + 0.013) < 1e-6
 
 
+def test_trials_run_in_parallel_only_while_a_cpu_idles_and_nest_inline():
+    import threading
+    import time
+
+    from preisach.diagnose.search import Trials
+
+    tr = Trials(2)
+    try:
+        names: list[str] = []
+
+        def f(x):
+            names.append(threading.current_thread().name)
+            time.sleep(0.05)
+            return x * x
+
+        assert tr.map(f, [1, 2, 3, 4]) == [1, 4, 9, 16]  # order kept
+        assert all(n.startswith("preisach-trial") for n in names)
+        # A map inside a trial runs inline (the pool's two threads waiting on their own
+        # work would deadlock).
+        names.clear()
+        assert tr.map(lambda x: sum(tr.map(f, [x, x + 1])), [1, 3]) == [1 + 4, 9 + 16]
+        assert len(set(names)) == 2
+        # Two searches running: both CPUs busy, the trials run inline in the caller.
+        names.clear()
+        with tr.search(), tr.search():
+            assert not tr.idle()
+            assert tr.map(f, [5, 6]) == [25, 36]
+        assert names == [threading.current_thread().name] * 2
+        with tr.search():
+            assert tr.idle()
+    finally:
+        tr.close()
+    assert Trials(1).map(lambda x: threading.current_thread().name, [0, 1]) == [threading.current_thread().name] * 2
+
+
 def test_mode_guess_returns_the_k_largest_peaks():
     from preisach.diagnose.effects import _mode_guess
 

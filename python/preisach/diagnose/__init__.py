@@ -30,7 +30,7 @@ import numpy as np
 
 from preisach.chain import Chain, rate_term, sample_period
 from preisach.diagnose.effects import CANDIDATES, FitState, Record, export_state, rmse
-from preisach.diagnose.search import CREEP_TAU_MIN, Effects, Fitter, calibrate_slow
+from preisach.diagnose.search import CREEP_TAU_MIN, Effects, Fitter, Trials, calibrate_slow
 from preisach.diagnose.report import GapReport, evidence_text
 from preisach.diagnose.where import localize, noise_floor, signatures
 from preisach.model import PreisachModel, PreisachWarning
@@ -38,6 +38,11 @@ from preisach.model import PreisachModel, PreisachWarning
 __all__ = ["diagnose", "GapReport", "run_cli", "CANDIDATES"]
 
 RecordLike = Union[str, "Path", dict, tuple, list]
+
+
+#: Candidates in the order their fits are started: the slowest first (a mode's fit is the
+#: longest; the quick ones fill the other thread), so the round ends with both busy.
+SLOW_FIRST = ("vibration", "lowpass", "creep", "delay")
 
 
 def _load(x: Any, name: str) -> Record:
@@ -120,13 +125,26 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
 
     Returns a :class:`GapReport`.
     """
+    if workers is None:
+        workers = min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+    # Independent trials of one search (starting points, grids) may run in these threads;
+    # they hold their own fit sessions, released with them.
+    trials = Trials(workers)
+    try:
+        return _diagnose(train, holdouts, n_h, baseline, candidates, min_shrink, fit_rate_hz, progress,
+                         search_rate_hz, trials)
+    finally:
+        trials.close()
+
+
+def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
+              baseline: Optional[Union[str, Path, Chain]], candidates: Sequence[str], min_shrink: float,
+              fit_rate_hz: float, progress: bool, search_rate_hz: float, trials: Trials) -> GapReport:
     t_start = time.perf_counter()
 
     def say(msg: str) -> None:
         _say(progress, f"[{time.perf_counter() - t_start:5.1f} s] {msg}")
 
-    if workers is None:
-        workers = min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
     if isinstance(holdouts, (str, Path, dict)) or (isinstance(holdouts, tuple) and len(holdouts) == 3
                                                     and not isinstance(holdouts[0], (str, Path, dict, tuple))):
         holdouts = [holdouts]  # type: ignore[list-item]
@@ -207,11 +225,11 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
     rng = (u_lo - pad, u_hi + pad)
     stride = max(1, int(round(1.0 / (tr.dt * fit_rate_hz))))
     sstride = max(stride, int(round(1.0 / (tr.dt * min(search_rate_hz, fit_rate_hz)))))
-    fitter = Fitter(tr, n_h, rng, sstride)
-    fine = Fitter(tr, n_h, rng, stride) if stride != sstride else fitter
+    fitter = Fitter(tr, n_h, rng, sstride, trials=trials)
+    fine = Fitter(tr, n_h, rng, stride, trials=trials) if stride != sstride else fitter
     if tr.u.size // (4 * sstride) >= 4000:
         # The slow effects' own searches on windows 4x longer (about 3 kHz).
-        fitter.slow = Fitter(tr, n_h, rng, 4 * sstride)
+        fitter.slow = Fitter(tr, n_h, rng, 4 * sstride, trials=trials)
 
     def excess_floor(st: FitState) -> float:
         return noise_floor(fitter.y - fitter.predict(st)) ** 2
@@ -283,16 +301,17 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
 
         def one(c: str, base: Effects = cur.effects) -> tuple[str, FitState, float, np.ndarray, float, float]:
             t0 = time.perf_counter()
-            eff = fitter.add(base, c)
-            st = fitter.state(eff)
+            with trials.search():
+                eff = fitter.add(base, c)
+                st = fitter.state(eff)
             sc, parts = score_parts(st)
             return c, st, sc, parts, fitter.J(eff), time.perf_counter() - t0
 
         # Candidates are independent: two at a time (the core releases the GIL). The slow
         # ones first, so the pool stays busy.
-        todo.sort(key=lambda c: c not in ("lowpass", "vibration", "creep", "delay"))
+        todo.sort(key=lambda c: SLOW_FIRST.index(c) if c in SLOW_FIRST else len(SLOW_FIRST))
         results: dict[str, tuple[FitState, float, np.ndarray, float]] = {}
-        with warnings.catch_warnings(), ThreadPoolExecutor(max_workers=max(1, min(workers, len(todo)))) as ex:
+        with warnings.catch_warnings(), ThreadPoolExecutor(max_workers=min(trials.workers, len(todo))) as ex:
             warnings.simplefilter("ignore", PreisachWarning)
             for c, st, sc, parts, jc, el in ex.map(one, todo):
                 results[c] = (st, sc, parts, jc)
@@ -372,7 +391,7 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
 
     def finer(st0: FitState) -> tuple[FitState, float, np.ndarray, float]:
         t0 = time.perf_counter()
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), trials.search():
             warnings.simplefilter("ignore", PreisachWarning)
             st = fine.state(st0.effects, n_h=nh2)
         sc, parts = score_parts(st)
@@ -384,7 +403,9 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
         if fine is not fitter and (accepted or base_effects):
             # (Local steps only: the valley between a delay and a low-pass was searched on the
             # coarser average.)
-            eff, _ = fine.polish(dict(cur.effects), list(cur.effects), sweeps=1, scale=0.5, refine=1, valley=False)
+            with trials.search():
+                eff, _ = fine.polish(dict(cur.effects), list(cur.effects), sweeps=1, scale=0.5, refine=1,
+                                     valley=False)
             pol = fine.state(eff)
             ps, pparts = score_parts(pol)
             say(f"refit at {1 / fine.dt:.0f} Hz: holdout RMSE {ps:.4g} (was {cur_score:.4g})")

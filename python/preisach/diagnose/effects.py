@@ -79,16 +79,18 @@ def _grid_then_golden(f: Callable[[float], float], grid: NDArray[np.float64], it
 
 def _parabolic_search(f: Callable[[float], float], x0: list[float], lo: float, hi: float,
                       refine: int = 3, expand: int = 4,
-                      known: Optional[dict[float, float]] = None) -> tuple[float, float]:
+                      known: Optional[dict[float, float]] = None,
+                      fmany: Optional[Callable[[list[float]], list[float]]] = None) -> tuple[float, float]:
     """Minimize a smooth function from three starting points: extend the bracket
     (by the starting spacing, within [lo, hi]) until the best point has a higher value
     on either side, then successive parabolic steps through the best point and its
-    neighbours. ``known``: values already computed. Returns (x, f(x)); few evaluations
-    when f is close to a parabola."""
+    neighbours. ``known``: values already computed; ``fmany``: ``f`` on a list of points
+    at once (the starting points are independent: evaluated together, in parallel).
+    Returns (x, f(x)); few evaluations when f is close to a parabola."""
     pts = dict(known or {})
-    for x in sorted(x0):
-        if float(x) not in pts:
-            pts[float(x)] = f(float(x))
+    new = [float(x) for x in sorted(x0) if float(x) not in pts]
+    for x, v in zip(new, fmany(new) if fmany is not None and len(new) > 1 else [f(x) for x in new]):
+        pts[x] = v
     step = ((max(x0) - min(x0)) / 2 if x0 else 0.0) or 1e-12
     for _ in range(expand):
         xs = sorted(pts)
@@ -123,10 +125,13 @@ def _parabolic_search(f: Callable[[float], float], x0: list[float], lo: float, h
     return b, pts[b]
 
 
-def _grid_then_parabola(f: Callable[[float], float], grid: NDArray[np.float64], refine: int = 3) -> tuple[float, float]:
+def _grid_then_parabola(f: Callable[[float], float], grid: NDArray[np.float64], refine: int = 3,
+                        fmany: Optional[Callable[[list[float]], list[float]]] = None) -> tuple[float, float]:
     """Coarse grid (robust to several minima), then successive parabolic steps around the
-    best grid point (for smooth objectives: 2-3 evaluations instead of a golden search's 8)."""
-    known = {float(x): f(float(x)) for x in grid}
+    best grid point (for smooth objectives: 2-3 evaluations instead of a golden search's 8).
+    ``fmany``: ``f`` on the whole grid at once (in parallel)."""
+    xs = [float(x) for x in grid]
+    known = dict(zip(xs, fmany(xs) if fmany is not None else [f(x) for x in xs]))
     return _parabolic_search(f, [], float(grid[0]), float(grid[-1]), refine=refine, expand=0, known=known)
 
 
