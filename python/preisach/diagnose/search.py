@@ -672,7 +672,14 @@ def normalized_creep(st: FitState) -> FitState:
                     st.train_rmse)
 
 
-def calibrate_slow(st: FitState, data: list[tuple[Record, slice]]) -> FitState:
+#: ``calibrate_slow`` fits on window averages down to about this rate: the slow effects'
+#: columns are smooth there (creep's shortest time constant is 5 ms), and the least
+#: squares over every record at full rate dominated a chain's scoring.
+CAL_RATE_HZ = 5e3
+
+
+def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
+                   outputs: Optional[dict[str, NDArray[np.float64]]] = None) -> FitState:
     """The slow effects of a chain (drift, creep) recalibrated across records, the masses
     and the other effects fixed. One short training record cannot tell them apart: within
     a record both are slow trends, and the masses absorb part of either. Across records
@@ -688,7 +695,10 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]]) -> FitState:
     grid (and its current one) by least squares on the given parts. Only what changes
     with time or restarts with the records is calibrated: the level and scale stay the
     training record's (recalibrating them would credit any effect with a free
-    adjustment to the holdouts)."""
+    adjustment to the holdouts). The least squares run on window averages (about
+    ``CAL_RATE_HZ``; averaging commutes with the creep element, and drift's ``t x`` is
+    smooth within a window). ``outputs``: the records' ``x`` by record name, computed
+    here when missing and stored (the folds of one chain share them)."""
     # A creep of several elements (a given baseline chain's) stays as it is.
     creep = "creep" in st.effects and len(st.effects["creep"]["taus_s"]) == 1
     if "drift" not in st.effects and not creep:
@@ -699,12 +709,25 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]]) -> FitState:
     pre = FitState(st.model, {k: v for k, v in eff0.items() if k != "drift" and not (k == "creep" and creep)})
     xs, ts, ys = [], [], []
     full_x: list[NDArray[np.float64]] = []
+    cuts: list[slice] = []
+    dts: list[float] = []
     for rec, sl in data:
-        x = pre.predict(rec)
-        full_x.append(x)
-        xs.append(x[sl])
-        ts.append(rec.t[sl])
-        ys.append(rec.y[sl])
+        if outputs is not None and rec.name in outputs:
+            x = outputs[rec.name]
+        else:
+            x = pre.predict(rec)
+            if outputs is not None:
+                outputs[rec.name] = x
+        k = max(1, int(round(1.0 / (rec.dt * CAL_RATE_HZ))))
+        xa = window_mean(x, k)
+        start, stop, _ = sl.indices(rec.y.size)
+        cut = slice(-(-start // k), stop // k)
+        full_x.append(xa)
+        cuts.append(cut)
+        dts.append(rec.dt * k)
+        xs.append(xa[cut])
+        ts.append(window_mean(rec.t, k)[cut])
+        ys.append(window_mean(rec.y, k)[cut])
     x, t, y = np.concatenate(xs), np.concatenate(ts), np.concatenate(ys)
     drift = "drift" in eff0
     base = [x * t, t] if drift else []
@@ -722,7 +745,7 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]]) -> FitState:
 
         def sse_at(lt: float) -> float:
             tk = math.exp(lt)
-            col = np.concatenate([(_lp(xf, tk, rec.dt) - xf)[sl] for xf, (rec, sl) in zip(full_x, data)])
+            col = np.concatenate([(_lp(xf, tk, dt) - xf)[cut] for xf, dt, cut in zip(full_x, dts, cuts)])
             # With a drift, its gain also scales the creep (the t k column).
             coef, sse = solve([col, t * col] if drift else [col])
             ci = -2 if drift else -1
