@@ -24,6 +24,7 @@ pub struct Pattern<'a> {
     pub rowval: &'a [usize],
 }
 
+#[derive(Default)]
 pub struct Ldl {
     /// Original index of pivot k.
     order: Vec<usize>,
@@ -35,15 +36,13 @@ pub struct Ldl {
     /// Whether each permuted entry is live in the current factorization.
     live: Vec<bool>,
     etree: Vec<usize>,
-    /// L by columns (backward solve; column c fills `lp[c]..lend[c]`, room for the full
-    /// pattern's count) and by rows (forward solve): both sweeps are then gathers.
+    /// L by columns (column c fills `lp[c]..lend[c]`, room for the full pattern's
+    /// count): the forward sweep scatters, the backward one gathers. (A row-wise copy
+    /// for a gathering forward sweep measured no faster and doubled L's memory.)
     lp: Vec<usize>,
     lend: Vec<usize>,
     li: Vec<u32>,
     lx: Vec<f64>,
-    rp: Vec<usize>,
-    ri: Vec<u32>,
-    rx: Vec<f64>,
     d: Vec<f64>,
     dinv: Vec<f64>,
     signs: Vec<f64>,
@@ -61,15 +60,24 @@ impl Ldl {
     /// Symbolic analysis of the full pattern eliminated in `order` (a permutation: pivot
     /// k is original index `order[k]`). `signs[i]` is the expected sign of pivot `i`
     /// (+1 primal, −1 dual).
+    #[cfg(test)]
     pub fn new(pat: &Pattern, order: &[usize], signs: &[i8]) -> Self {
+        let mut f = Ldl::default();
+        f.analyze(pat, order, signs);
+        f
+    }
+
+    /// [`Ldl::new`] in this factorization's buffers (their memory reused).
+    pub fn analyze(&mut self, pat: &Pattern, order: &[usize], signs: &[i8]) {
         let n = pat.colptr.len() - 1;
         assert!(order.len() == n && signs.len() == n && n < u32::MAX as usize);
-        let mut inv = vec![NONE; n];
+        // `anc` serves as the inverse permutation here.
+        let inv = refill(&mut self.anc, n, NONE);
         for (k, &i) in order.iter().enumerate() {
             inv[i] = k;
         }
         // Permuted upper triangle: entry (i, j) goes to column max(inv i, inv j).
-        let mut ap = vec![0usize; n + 1];
+        let ap = refill(&mut self.ap, n + 1, 0);
         for j in 0..n {
             for &i in &pat.rowval[pat.colptr[j]..pat.colptr[j + 1]] {
                 ap[inv[i].max(inv[j]) + 1] += 1;
@@ -79,9 +87,11 @@ impl Ldl {
             ap[k + 1] += ap[k];
         }
         let nnz = ap[n];
-        let mut ai = vec![0u32; nnz];
-        let mut src = vec![0usize; nnz];
-        let mut fill = ap.clone();
+        let ai = refill(&mut self.ai, nnz, 0);
+        let src = refill(&mut self.src, nnz, 0);
+        // `lend` serves as the fill pointers here.
+        let fill = refill(&mut self.lend, n, 0);
+        fill.copy_from_slice(&ap[..n]);
         for j in 0..n {
             for p in pat.colptr[j]..pat.colptr[j + 1] {
                 let (a, b) = (inv[pat.rowval[p]], inv[j]);
@@ -92,10 +102,10 @@ impl Ldl {
             }
         }
         // Column counts of the full factor (walking the elimination tree row by row):
-        // the storage layout of every factor.
-        let mut etree = vec![NONE; n];
-        let mut lnz = vec![0usize; n];
-        let mut mark = vec![NONE; n];
+        // the storage layout of every factor. (`lp` holds the counts, `y_idx` the marks.)
+        let etree = refill(&mut self.etree, n, NONE);
+        let lp = refill(&mut self.lp, n + 1, 0);
+        let mark = refill(&mut self.y_idx, n, NONE);
         for j in 0..n {
             mark[j] = j;
             for &i0 in &ai[ap[j]..ap[j + 1]] {
@@ -104,42 +114,56 @@ impl Ldl {
                     if etree[i] == NONE {
                         etree[i] = j;
                     }
-                    lnz[i] += 1;
+                    lp[i + 1] += 1;
                     mark[i] = j;
                     i = etree[i];
                 }
             }
         }
-        let mut lp = vec![0usize; n + 1];
         for k in 0..n {
-            lp[k + 1] = lp[k] + lnz[k];
+            lp[k + 1] += lp[k];
         }
         let l_nnz = lp[n];
-        Ldl {
-            order: order.to_vec(),
-            signs: order.iter().map(|&i| f64::from(signs[i])).collect(),
-            live: vec![true; nnz],
-            ap,
-            ai,
-            src,
-            etree,
-            lend: lp[..n].to_vec(),
-            lp,
-            li: vec![0; l_nnz],
-            lx: vec![0.0; l_nnz],
-            rp: vec![0; n + 1],
-            ri: vec![0; l_nnz],
-            rx: vec![0.0; l_nnz],
-            d: vec![0.0; n],
-            dinv: vec![0.0; n],
-            ax: vec![0.0; nnz],
-            anc: vec![NONE; n],
-            y_vals: vec![0.0; n],
-            y_used: vec![false; n],
-            y_idx: vec![0; n],
-            elim: vec![0; n],
-            work: vec![0.0; n],
-        }
+        self.order.clear();
+        self.order.extend_from_slice(order);
+        self.signs.clear();
+        self.signs.extend(order.iter().map(|&i| f64::from(signs[i])));
+        refill(&mut self.live, nnz, true);
+        self.lend.copy_from_slice(&self.lp[..n]);
+        refill(&mut self.li, l_nnz, 0);
+        refill(&mut self.lx, l_nnz, 0.0);
+        refill(&mut self.d, n, 0.0);
+        refill(&mut self.dinv, n, 0.0);
+        refill(&mut self.ax, nnz, 0.0);
+        refill(&mut self.anc, n, NONE);
+        refill(&mut self.y_vals, n, 0.0);
+        refill(&mut self.y_used, n, false);
+        refill(&mut self.y_idx, n, 0);
+        refill(&mut self.elim, n, 0);
+        refill(&mut self.work, n, 0.0);
+    }
+
+    /// Bytes held by the buffers.
+    pub fn capacity_bytes(&self) -> usize {
+        8 * (self.order.capacity()
+            + self.ap.capacity()
+            + self.src.capacity()
+            + self.etree.capacity()
+            + self.lp.capacity()
+            + self.lend.capacity()
+            + self.lx.capacity()
+            + self.d.capacity()
+            + self.dinv.capacity()
+            + self.signs.capacity()
+            + self.ax.capacity()
+            + self.anc.capacity()
+            + self.y_vals.capacity()
+            + self.y_idx.capacity()
+            + self.elim.capacity()
+            + self.work.capacity())
+            + 4 * (self.ai.capacity() + self.li.capacity())
+            + self.live.capacity()
+            + self.y_used.capacity()
     }
 
     /// Numeric factorization with the pattern's values `val`, coupling only indices
@@ -181,7 +205,6 @@ impl Ldl {
         pc.iter_mut().for_each(|f| *f = false);
         let (ap, ai, ax, live) = (&self.ap, &self.ai, &self.ax, &self.live);
         let (lp, lend, li, lx) = (&self.lp, &mut self.lend, &mut self.li, &mut self.lx);
-        let (rp, ri, rx) = (&mut self.rp, &mut self.ri, &mut self.rx);
         let (d, dinv, etree) = (&mut self.d, &mut self.dinv, &self.etree);
         let (y_vals, y_used, y_idx, elim) = (&mut self.y_vals, &mut self.y_used, &mut self.y_idx, &mut self.elim);
         lend.copy_from_slice(&lp[..n]);
@@ -218,8 +241,6 @@ impl Ldl {
                     nnz_y += 1;
                 }
             }
-            let row0 = rp[k];
-            rp[k + 1] = row0 + nnz_y;
             for t in (0..nnz_y).rev() {
                 let c = y_idx[t];
                 let end = lend[c];
@@ -230,8 +251,6 @@ impl Ldl {
                 let lkc = yc * dinv[c];
                 li[end] = k as u32;
                 lx[end] = lkc;
-                ri[row0 + t] = c as u32;
-                rx[row0 + t] = lkc;
                 dk -= yc * lkc;
                 lend[c] = end + 1;
                 y_vals[c] = 0.0;
@@ -271,14 +290,19 @@ impl Ldl {
         for (wk, &i) in w.iter_mut().zip(&self.order) {
             *wk = x[i];
         }
-        let (rp, ri, rx) = (&self.rp, &self.ri, &self.rx);
-        for k in 0..n {
-            w[k] -= dot(&ri[rp[k]..rp[k + 1]], &rx[rp[k]..rp[k + 1]], w);
+        let (lp, lend, li, lx) = (&self.lp, &self.lend, &self.li, &self.lx);
+        for j in 0..n {
+            let wj = w[j];
+            // (Right-hand sides of bordered and refinement solves are often sparse.)
+            if wj != 0.0 {
+                for (&r, &l) in li[lp[j]..lend[j]].iter().zip(&lx[lp[j]..lend[j]]) {
+                    w[r as usize] -= l * wj;
+                }
+            }
         }
         for (wk, &di) in w.iter_mut().zip(&self.dinv) {
             *wk *= di;
         }
-        let (lp, lend, li, lx) = (&self.lp, &self.lend, &self.li, &self.lx);
         for j in (0..n).rev() {
             w[j] -= dot(&li[lp[j]..lend[j]], &lx[lp[j]..lend[j]], w);
         }
@@ -335,6 +359,13 @@ impl Ldl {
             }
         }
     }
+}
+
+/// `v` resized to `n` entries all equal to `x` (its memory reused), as a slice.
+fn refill<T: Copy>(v: &mut Vec<T>, n: usize, x: T) -> &mut [T] {
+    v.clear();
+    v.resize(n, x);
+    v
 }
 
 /// `Σ val[t] · w[idx[t]]` for four right-hand sides, two partial sums each.
