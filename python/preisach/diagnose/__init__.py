@@ -191,7 +191,7 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
         if "drift" not in st.effects and "creep" not in st.effects:
             return [st.predict(h) - h.y for h in hos]
         errs = [np.empty(h.y.size) for h in hos]
-        outputs: dict[str, np.ndarray] = {}
+        outputs: dict[int, np.ndarray] = {}
         for k in (0, 1):
             cal = calibrate_slow(st, [(tr, slice(None))] + [(h, hv[1 - k]) for h, hv in zip(hos, halves)], outputs)
             for e, h, hv in zip(errs, hos, halves):

@@ -672,14 +672,13 @@ def normalized_creep(st: FitState) -> FitState:
                     st.train_rmse)
 
 
-#: ``calibrate_slow`` fits on window averages down to about this rate: the slow effects'
-#: columns are smooth there (creep's shortest time constant is 5 ms), and the least
-#: squares over every record at full rate dominated a chain's scoring.
+#: ``calibrate_slow`` fits on window averages down to about this rate: the least squares
+#: over every record at full rate dominated a chain's scoring.
 CAL_RATE_HZ = 5e3
 
 
 def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
-                   outputs: Optional[dict[str, NDArray[np.float64]]] = None) -> FitState:
+                   outputs: Optional[dict[int, NDArray[np.float64]]] = None) -> FitState:
     """The slow effects of a chain (drift, creep) recalibrated across records, the masses
     and the other effects fixed. One short training record cannot tell them apart: within
     a record both are slow trends, and the masses absorb part of either. Across records
@@ -695,9 +694,9 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
     grid (and its current one) by least squares on the given parts. Only what changes
     with time or restarts with the records is calibrated: the level and scale stay the
     training record's (recalibrating them would credit any effect with a free
-    adjustment to the holdouts). The least squares run on window averages (about
-    ``CAL_RATE_HZ``; averaging commutes with the creep element, and drift's ``t x`` is
-    smooth within a window). ``outputs``: the records' ``x`` by record name, computed
+    adjustment to the holdouts). The least squares run on window averages of every
+    column (about ``CAL_RATE_HZ``: the averaged equations hold exactly, and their
+    solution is that of the full-rate ones up to the noise). ``outputs``: the records' ``x`` by ``id(record)``, computed
     here when missing and stored (the folds of one chain share them)."""
     # A creep of several elements (a given baseline chain's) stays as it is.
     creep = "creep" in st.effects and len(st.effects["creep"]["taus_s"]) == 1
@@ -707,30 +706,30 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
         st = normalized_creep(st)
     eff0 = st.effects
     pre = FitState(st.model, {k: v for k, v in eff0.items() if k != "drift" and not (k == "creep" and creep)})
-    xs, ts, ys = [], [], []
+    xs, ts, ys, xts = [], [], [], []
     full_x: list[NDArray[np.float64]] = []
     cuts: list[slice] = []
-    dts: list[float] = []
+    ks: list[int] = []
     for rec, sl in data:
-        if outputs is not None and rec.name in outputs:
-            x = outputs[rec.name]
+        if outputs is not None and id(rec) in outputs:
+            x = outputs[id(rec)]
         else:
             x = pre.predict(rec)
             if outputs is not None:
-                outputs[rec.name] = x
+                outputs[id(rec)] = x
         k = max(1, int(round(1.0 / (rec.dt * CAL_RATE_HZ))))
-        xa = window_mean(x, k)
         start, stop, _ = sl.indices(rec.y.size)
         cut = slice(-(-start // k), stop // k)
-        full_x.append(xa)
+        full_x.append(x)
         cuts.append(cut)
-        dts.append(rec.dt * k)
-        xs.append(xa[cut])
+        ks.append(k)
+        xs.append(window_mean(x, k)[cut])
         ts.append(window_mean(rec.t, k)[cut])
         ys.append(window_mean(rec.y, k)[cut])
+        xts.append(window_mean(x * rec.t, k)[cut])
     x, t, y = np.concatenate(xs), np.concatenate(ts), np.concatenate(ys)
     drift = "drift" in eff0
-    base = [x * t, t] if drift else []
+    base = [np.concatenate(xts), t] if drift else []
     target = y - x - (eff0["drift"]["offset"] if drift else 0.0)
 
     def solve(extra: list[NDArray[np.float64]]) -> tuple[NDArray[np.float64], float]:
@@ -745,9 +744,12 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
 
         def sse_at(lt: float) -> float:
             tk = math.exp(lt)
-            col = np.concatenate([(_lp(xf, tk, dt) - xf)[cut] for xf, dt, cut in zip(full_x, dts, cuts)])
+            ks_ = [_lp(xf, tk, rec.dt) - xf for xf, (rec, _) in zip(full_x, data)]
+            col = np.concatenate([window_mean(kf, k)[cut] for kf, k, cut in zip(ks_, ks, cuts)])
             # With a drift, its gain also scales the creep (the t k column).
-            coef, sse = solve([col, t * col] if drift else [col])
+            tcol = [np.concatenate([window_mean(kf * rec.t, k)[cut] for kf, k, cut, (rec, _)
+                                    in zip(ks_, ks, cuts, data)])] if drift else []
+            coef, sse = solve([col] + tcol)
             ci = -2 if drift else -1
             if not 0.0 <= coef[ci] <= CREEP_AMP_MAX:
                 # The amplitude at its bound, the rest refitted (a clipped joint solution
