@@ -1,11 +1,13 @@
 //! Quick identification timing (medians and minima over repeated fits):
 //!
-//!     cargo run --release -p preisach-core --example prof_identify -- N_H SOLVER SAMPLES REPS [sweep|random] [SEED]
+//!     cargo run --release -p preisach-core --example prof_identify -- N_H SOLVER SAMPLES REPS [sweep|random|file:U:Y] [SEED] [interp]
 //!
 //! `sweep` (default): a sine of growing amplitude through a smooth density, as
 //! `benches/compare.py`; `random`: a random walk through random targets (deeper
-//! staircases, more rows). Prints the solver used, its steps, the training RMSE and the
-//! median fit / solve / rows times. (`cargo bench --bench identify` is the criterion
+//! staircases, more rows); `file:U:Y`: input and output read from two raw
+//! little-endian f64 files (the first SAMPLES of each; model range = the default
+//! range of the input). `interp` fits the interpolated model. Prints the solver used,
+//! its steps, the training RMSE and the median fit / solve / rows times. (`cargo bench --bench identify` is the criterion
 //! version of the sweep at n_h = 20, 40, 60.)
 
 use preisach_core::grid::Grid;
@@ -44,7 +46,15 @@ fn main() {
     let seed: u64 = args.get(6).and_then(|s| s.parse().ok()).unwrap_or(7);
     let mut rng = Lcg(seed);
     let kind = args.get(5).map_or("sweep", |s| s.as_str());
-    let u: Vec<f64> = if kind == "random" {
+    let interpolated = args.get(7).is_some_and(|s| s == "interp");
+    let read = |p: &str| -> Vec<f64> {
+        let b = std::fs::read(p).unwrap_or_else(|e| panic!("{p}: {e}"));
+        b.chunks_exact(8).take(n).map(|c| f64::from_le_bytes(c.try_into().unwrap())).collect()
+    };
+    let file = kind.strip_prefix("file:").map(|s| s.split_once(':').expect("file:PATH_U:PATH_Y"));
+    let u: Vec<f64> = if let Some((pu, _)) = file {
+        read(pu)
+    } else if kind == "random" {
         // Band-limited random input: a random walk through smoothed random targets.
         let mut v = Vec::with_capacity(n);
         let (mut x, mut target) = (50.0, 50.0);
@@ -64,15 +74,20 @@ fn main() {
             })
             .collect()
     };
-    let truth = PreisachModel::new(Grid::new(0.0, 100.0, n_h).unwrap(), smooth(n_h), 0.0).unwrap();
-    let mut y = vec![0.0; n];
-    truth.run(&mut truth.memory(), &u, &mut y);
-    for v in &mut y {
-        *v += 0.01 * rng.normal();
-    }
+    let y = if let Some((_, py)) = file {
+        read(py)
+    } else {
+        let truth = PreisachModel::new(Grid::new(0.0, 100.0, n_h).unwrap(), smooth(n_h), 0.0).unwrap();
+        let mut y = vec![0.0; n];
+        truth.run(&mut truth.memory(), &u, &mut y);
+        for v in &mut y {
+            *v += 0.01 * rng.normal();
+        }
+        y
+    };
     let (mn, mx) = u.iter().fold((f64::MAX, f64::MIN), |(a, b), &x| (a.min(x), b.max(x)));
     let rg = (mn + 0.005 * (mx - mn), mx - 0.005 * (mx - mn));
-    let opts = FitOptions { n_h, u_range: Some(rg), reg: 0.0, solver, interpolated: false };
+    let opts = FitOptions { n_h, u_range: Some(rg), reg: 0.0, solver, interpolated };
     let mut ts = vec![];
     let mut ss = vec![];
     let mut rs = vec![];
@@ -91,5 +106,5 @@ fn main() {
     };
     let r = rep.unwrap();
     let (mt, ms) = (med(&mut ts), med(&mut ss));
-    println!("n_h={n_h} solver={} rows={} it={} rmse={:.9e} fit {:.2} ms solve {:.2} ms rows {:.2} ms (min fit {:.2} solve {:.2})", r.solver, r.n_rows, r.iterations, r.rmse, mt, ms, med(&mut rs), ts[0] * 1e3, ss[0] * 1e3);
+    println!("n_h={n_h} solver={} rows={} it={} rmse={:.12e} fit {:.2} ms solve {:.2} ms rows {:.2} ms (min fit {:.2} solve {:.2})", r.solver, r.n_rows, r.iterations, r.rmse, mt, ms, med(&mut rs), ts[0] * 1e3, ss[0] * 1e3);
 }
