@@ -169,8 +169,15 @@ def test_trials_run_in_parallel_only_while_a_cpu_idles_and_nest_inline():
         # A map inside a trial runs inline (the pool's two threads waiting on their own
         # work would deadlock).
         names.clear()
-        assert tr.map(lambda x: sum(tr.map(f, [x, x + 1])), [1, 3]) == [1 + 4, 9 + 16]
-        assert len(set(names)) == 2
+
+        def outer(x):
+            inner = tr.map(f, [x, x + 1])
+            return threading.current_thread().name, sum(inner)
+
+        got = tr.map(outer, [1, 3])
+        assert [v for _, v in got] == [1 + 4, 9 + 16]
+        # Each outer trial's two inner ones ran in its own thread.
+        assert sorted(names) == sorted(n for n, _ in got for _ in range(2))
         # Two searches running: both CPUs busy, the trials run inline in the caller.
         names.clear()
         with tr.search(), tr.search():
