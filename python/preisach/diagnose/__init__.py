@@ -121,7 +121,8 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
         down to about this rate. Averaging commutes with the dynamics, so this costs
         accuracy only through the finer details of the input between windows.
     workers : int, optional
-        Candidate fits run in this many threads (default: up to 2, the CPUs available).
+        Candidate fits (and a search's independent trials, while a CPU would otherwise
+        idle) run in this many threads (default: up to 2, the CPUs available).
 
     Returns a :class:`GapReport`.
     """
