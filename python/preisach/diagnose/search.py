@@ -198,18 +198,14 @@ class Fitter:
         #: the window average is exact for any chain, and a slow trend's error landscape
         #: is the same on it at a fraction of the cost); their polish runs here.
         self.slow: Optional[Fitter] = None
-        #: Threads for independent trials (the core releases the GIL).
-        self.trials = trials
-
-    def map(self, fn: Callable[[T], R], items: Sequence[T]) -> list[R]:
-        """``fn`` on every item (in parallel when a CPU idles, see :class:`Trials`)."""
-        return self.trials.map(fn, items) if self.trials is not None else [fn(x) for x in items]
+        #: Threads for independent trials (the core releases the GIL; none by default).
+        self.trials = trials if trials is not None else Trials(1)
 
     def Jmany(self, effs: Sequence[Effects]) -> list[float]:
         """``J`` of several chains (the ones not memoized yet in parallel)."""
         with self._lock:
             todo = [e for e in effs if _key(e) not in self._memo]
-        self.map(self.J, todo)
+        self.trials.map(self.J, todo)
         return [self.J(e) for e in effs]
 
     def coarse(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -515,8 +511,8 @@ class Fitter:
         and compresses every other one."""
         T = float(self.rec.t[-1] - self.rec.t[0])
         taus = [float(x) for x in np.geomspace(CREEP_TAU_MIN, max(0.05, CREEP_TAU_MAX_RECORDS * T), 8)]
-        trials = [(fx, c, tau) for tau, (c, fx) in zip(taus, self.map(lambda tau: self.creep_amp(eff, tau, refine=1),
-                                                                       taus))]
+        fits = self.trials.map(lambda tau: self.creep_amp(eff, tau, refine=1), taus)
+        trials = [(fx, c, tau) for tau, (c, fx) in zip(taus, fits)]
         best = min(trials)[0]
         fx, c, tau = min((t for t in trials if t[0] <= best * (1 + 2e-4)), key=lambda t: t[1])
         step = math.log(trials[1][2] / trials[0][2]) / 2
@@ -591,14 +587,12 @@ class Fitter:
                     P = w0 * w0 / (w0 * w0 - om[mk] ** 2 + 2j * zt * w0 * om[mk]) * B[mk]
                 errs = np.sum(np.abs(P[None, :] * phc[m] - Y[mk][None, :]) ** 2, axis=1)
                 k = int(np.argmin(errs))
-                if not nuisance:
-                    pass
-                elif k < dgrid.size:
+                if nuisance and k < dgrid.size:
                     found[0] = ("delay", float(dgrid[k]), 0)
-                else:
-                    k -= dgrid.size
-                    found[0] = ("lowpass", float(cgrid[k % cgrid.size]), 1 + k // cgrid.size)
-                return float(errs[int(np.argmin(errs))])
+                elif nuisance:
+                    j = k - dgrid.size
+                    found[0] = ("lowpass", float(cgrid[j % cgrid.size]), 1 + j // cgrid.size)
+                return float(errs[k])
 
             def refine(f0: float, span: float) -> tuple[float, float, tuple[str, float, int], float]:
                 m = (0.6 * f0, 1.6 * f0)
@@ -696,8 +690,9 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
     training record's (recalibrating them would credit any effect with a free
     adjustment to the holdouts). The least squares run on window averages of every
     column (about ``CAL_RATE_HZ``: the averaged equations hold exactly, and their
-    solution is that of the full-rate ones up to the noise). ``outputs``: the records' ``x`` by ``id(record)``, computed
-    here when missing and stored (the folds of one chain share them)."""
+    solution is that of the full-rate ones up to the noise). ``outputs``: the records'
+    ``x`` by ``id(record)``, computed here when missing and stored (the folds of one
+    chain share them)."""
     # A creep of several elements (a given baseline chain's) stays as it is.
     creep = "creep" in st.effects and len(st.effects["creep"]["taus_s"]) == 1
     if "drift" not in st.effects and not creep:
@@ -706,10 +701,8 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
         st = normalized_creep(st)
     eff0 = st.effects
     pre = FitState(st.model, {k: v for k, v in eff0.items() if k != "drift" and not (k == "creep" and creep)})
-    xs, ts, ys, xts = [], [], [], []
     full_x: list[NDArray[np.float64]] = []
-    cuts: list[slice] = []
-    ks: list[int] = []
+    avgs: list[Callable[[NDArray[np.float64]], NDArray[np.float64]]] = []
     for rec, sl in data:
         if outputs is not None and id(rec) in outputs:
             x = outputs[id(rec)]
@@ -717,19 +710,20 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
             x = pre.predict(rec)
             if outputs is not None:
                 outputs[id(rec)] = x
+        full_x.append(x)
         k = max(1, int(round(1.0 / (rec.dt * CAL_RATE_HZ))))
         start, stop, _ = sl.indices(rec.y.size)
-        cut = slice(-(-start // k), stop // k)
-        full_x.append(x)
-        cuts.append(cut)
-        ks.append(k)
-        xs.append(window_mean(x, k)[cut])
-        ts.append(window_mean(rec.t, k)[cut])
-        ys.append(window_mean(rec.y, k)[cut])
-        xts.append(window_mean(x * rec.t, k)[cut])
-    x, t, y = np.concatenate(xs), np.concatenate(ts), np.concatenate(ys)
+        cut = slice(-(-start // k), stop // k)  # the windows inside the part
+        avgs.append(lambda v, k=k, cut=cut: window_mean(v, k)[cut])
+
+    def averaged(cols: list[NDArray[np.float64]]) -> NDArray[np.float64]:
+        """A full-rate column per record, window-averaged on the records' parts."""
+        return np.concatenate([avg(c) for avg, c in zip(avgs, cols)])
+
+    times = [rec.t for rec, _ in data]
+    x, t, y = averaged(full_x), averaged(times), averaged([rec.y for rec, _ in data])
     drift = "drift" in eff0
-    base = [np.concatenate(xts), t] if drift else []
+    base = [averaged([xf * tf for xf, tf in zip(full_x, times)]), t] if drift else []
     target = y - x - (eff0["drift"]["offset"] if drift else 0.0)
 
     def solve(extra: list[NDArray[np.float64]]) -> tuple[NDArray[np.float64], float]:
@@ -744,11 +738,10 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
 
         def sse_at(lt: float) -> float:
             tk = math.exp(lt)
-            ks_ = [_lp(xf, tk, rec.dt) - xf for xf, (rec, _) in zip(full_x, data)]
-            col = np.concatenate([window_mean(kf, k)[cut] for kf, k, cut in zip(ks_, ks, cuts)])
+            resp = [_lp(xf, tk, rec.dt) - xf for xf, (rec, _) in zip(full_x, data)]
+            col = averaged(resp)
             # With a drift, its gain also scales the creep (the t k column).
-            tcol = [np.concatenate([window_mean(kf * rec.t, k)[cut] for kf, k, cut, (rec, _)
-                                    in zip(ks_, ks, cuts, data)])] if drift else []
+            tcol = [averaged([kf * tf for kf, tf in zip(resp, times)])] if drift else []
             coef, sse = solve([col] + tcol)
             ci = -2 if drift else -1
             if not 0.0 <= coef[ci] <= CREEP_AMP_MAX:
@@ -756,7 +749,7 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
                 # would leave the other coefficients compensating an amplitude not used).
                 cb = min(max(coef[ci], 0.0), CREEP_AMP_MAX)
                 A = np.column_stack(base) if base else np.zeros((t.size, 0))
-                r0 = target - cb * (col + (0.0 if not drift else 0.0))
+                r0 = target - cb * col
                 if A.shape[1]:
                     sub, *_ = np.linalg.lstsq(A, r0, rcond=None)
                     sse = float(np.sum((A @ sub - r0) ** 2))
