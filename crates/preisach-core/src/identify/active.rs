@@ -126,8 +126,9 @@ impl Kkt {
         let n_q = pb.rows.n_vars();
         let n = n_q + 1;
         let m = n_q;
-        // Bucket the triplets by column (a counting sort), then sort each short column
-        // by row and sum duplicates: cheaper than one sort of all the triplets.
+        // Bucket the triplets by column (a counting sort), then sum each column's
+        // duplicates and sort its distinct rows: cheaper than one sort of all the
+        // triplets.
         let mut start = vec![0usize; n + 1];
         for t in trip {
             start[(t.0 >> 32) as usize + 1] += 1;
@@ -150,23 +151,34 @@ impl Kkt {
         rowval.reserve(bucket.len() + n + 5 * m);
         val.clear();
         val.reserve(bucket.len() + n + 5 * m);
+        // Duplicates are summed in a dense accumulator (`acc`, rows marked by `seen`),
+        // so only the distinct rows are sorted: the offset's column holds a triplet per
+        // row entry (thousands) but only n distinct rows. (Sorting the triplets was 40 %
+        // of this build at n_h = 40.)
+        let mut seen = vec![usize::MAX; n];
+        let mut acc = vec![0.0f64; n];
+        let mut list: Vec<usize> = Vec::new();
         for c in 0..n {
-            let col = &mut bucket[start[c]..start[c + 1]];
-            col.sort_unstable_by_key(|e| e.0);
-            let mut last = u32::MAX;
-            for &(r, v) in col.iter() {
-                if r == last {
-                    *val.last_mut().unwrap() += v;
+            list.clear();
+            for &(r, v) in &bucket[start[c]..start[c + 1]] {
+                let r = r as usize;
+                if seen[r] == c {
+                    acc[r] += v;
                 } else {
-                    last = r;
-                    rowval.push(r as usize);
-                    val.push(v);
+                    seen[r] = c;
+                    acc[r] = v;
+                    list.push(r);
                 }
             }
             // The diagonal, present even where no row observes the variable.
-            if last != c as u32 {
-                rowval.push(c);
-                val.push(0.0);
+            if seen[c] != c {
+                acc[c] = 0.0;
+                list.push(c);
+            }
+            list.sort_unstable();
+            for &r in &list {
+                rowval.push(r);
+                val.push(acc[r]);
             }
             colptr[c + 1] = rowval.len();
         }

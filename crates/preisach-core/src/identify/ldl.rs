@@ -87,8 +87,8 @@ impl Ldl {
             ap[k + 1] += ap[k];
         }
         let nnz = ap[n];
-        let ai = refill(&mut self.ai, nnz, 0);
-        let src = refill(&mut self.src, nnz, 0);
+        let ai = sized(&mut self.ai, nnz, 0);
+        let src = sized(&mut self.src, nnz, 0);
         // `lend` serves as the fill pointers here.
         let fill = refill(&mut self.lend, n, 0);
         fill.copy_from_slice(&ap[..n]);
@@ -128,19 +128,19 @@ impl Ldl {
         self.order.extend_from_slice(order);
         self.signs.clear();
         self.signs.extend(order.iter().map(|&i| f64::from(signs[i])));
-        refill(&mut self.live, nnz, true);
+        sized(&mut self.live, nnz, true);
         self.lend.copy_from_slice(&self.lp[..n]);
-        refill(&mut self.li, l_nnz, 0);
-        refill(&mut self.lx, l_nnz, 0.0);
-        refill(&mut self.d, n, 0.0);
-        refill(&mut self.dinv, n, 0.0);
-        refill(&mut self.ax, nnz, 0.0);
+        sized(&mut self.li, l_nnz, 0);
+        sized(&mut self.lx, l_nnz, 0.0);
+        sized(&mut self.d, n, 0.0);
+        sized(&mut self.dinv, n, 0.0);
+        sized(&mut self.ax, nnz, 0.0);
         refill(&mut self.anc, n, NONE);
         refill(&mut self.y_vals, n, 0.0);
         refill(&mut self.y_used, n, false);
         refill(&mut self.y_idx, n, 0);
-        refill(&mut self.elim, n, 0);
-        refill(&mut self.work, n, 0.0);
+        sized(&mut self.elim, n, 0);
+        sized(&mut self.work, n, 0.0);
     }
 
     /// Bytes held by the buffers.
@@ -359,6 +359,14 @@ impl Ldl {
             }
         }
     }
+}
+
+/// `v` resized to `n` entries, old values kept (its memory reused, no pass over it), as
+/// a slice: for buffers that are written before they are read.
+fn sized<T: Copy>(v: &mut Vec<T>, n: usize, x: T) -> &mut [T] {
+    v.truncate(n);
+    v.resize(n, x);
+    v
 }
 
 /// `v` resized to `n` entries all equal to `x` (its memory reused), as a slice.
