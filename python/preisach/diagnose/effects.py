@@ -94,7 +94,7 @@ def _parabolic_search(f: Callable[[float], float], x0: list[float], lo: float, h
     step = ((max(x0) - min(x0)) / 2 if x0 else 0.0) or 1e-12
     for _ in range(expand):
         xs = sorted(pts)
-        b = min(pts, key=pts.get)
+        b = min(pts, key=pts.__getitem__)
         if b == xs[0] and b > lo:
             x = max(lo, b - step)
         elif b == xs[-1] and b < hi:
@@ -105,7 +105,7 @@ def _parabolic_search(f: Callable[[float], float], x0: list[float], lo: float, h
         pts[x] = f(x)
     for _ in range(refine):
         xs = sorted(pts)
-        b = min(pts, key=pts.get)
+        b = min(pts, key=pts.__getitem__)
         i = xs.index(b)
         if i == 0 or i == len(xs) - 1:
             break
@@ -121,7 +121,7 @@ def _parabolic_search(f: Callable[[float], float], x0: list[float], lo: float, h
         if min(abs(x - q) for q in xs) < 1e-3 * (c - a):
             break
         pts[x] = f(x)
-    b = min(pts, key=pts.get)
+    b = min(pts, key=pts.__getitem__)
     return b, pts[b]
 
 

@@ -208,6 +208,12 @@ class Fitter:
         self.trials.map(self.J, todo)
         return [self.J(e) for e in effs]
 
+    def along(self, chain: Callable[[float], Effects]) -> tuple[Callable[[float], float],
+                                                               Callable[[list[float]], list[float]]]:
+        """The error along a one-parameter family of chains, as the searches take it:
+        one point (``f``) and several at once, in parallel (``fmany``)."""
+        return (lambda x: self.J(chain(x))), (lambda xs: self.Jmany([chain(x) for x in xs]))
+
     def coarse(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """A full-rate signal of the training record, averaged like the fit's target."""
         return window_mean(x, self.stride)
@@ -319,15 +325,13 @@ class Fitter:
         x0 = _get(eff, name, key)
         if logs:
             c = math.log(max(x0, 1e-300))
-            f = lambda x: self.J(_set(eff, name, key, math.exp(x)))  # noqa: E731
-            fm = lambda xs: self.Jmany([_set(eff, name, key, math.exp(x)) for x in xs])  # noqa: E731
+            f, fm = self.along(lambda x: _set(eff, name, key, math.exp(x)))
             lo_, hi_ = math.log(lo), math.log(hi)
             c = min(max(c, lo_), hi_)
             pts = sorted({max(lo_, c - rel), c, min(hi_, c + rel)})
         else:
             step = rel * abs(x0) if x0 != 0 else rel * (hi - lo) * 0.01
-            f = lambda x: self.J(_set(eff, name, key, x))  # noqa: E731
-            fm = lambda xs: self.Jmany([_set(eff, name, key, x) for x in xs])  # noqa: E731
+            f, fm = self.along(lambda x: _set(eff, name, key, x))
             x0 = min(max(x0, lo), hi)
             pts = sorted({max(lo, x0 - step), x0, min(hi, x0 + step)})
             lo_, hi_ = lo, hi
@@ -349,9 +353,9 @@ class Fitter:
         differently (coordinate steps cross it only slowly)."""
         lag = eff["delay"]["delay_s"] + group_delay(eff["lowpass"])
         s0 = eff["delay"]["delay_s"] / lag if lag > 0 else 0.0
-        f = lambda sh: self.J(self.split_lag(eff, sh))  # noqa: E731
+        f, fm = self.along(lambda sh: self.split_lag(eff, sh))
         grid = np.unique(np.clip(np.concatenate([[s0], np.linspace(0.0, 0.9, 7)]), 0.0, 0.97))
-        sh, fx = _grid_then_parabola(f, grid, fmany=lambda xs: self.Jmany([self.split_lag(eff, x) for x in xs]))
+        sh, fx = _grid_then_parabola(f, grid, fmany=fm)
         return (self.split_lag(eff, sh), fx) if fx < self.J(eff) else (eff, self.J(eff))
 
     def polish(self, eff: Effects, names: list[str], sweeps: int = 1, scale: float = 1.0,
@@ -392,9 +396,8 @@ class Fitter:
             eff, _ = self.line(eff, "delay", "delay_s", 3.0)
         elif name == "delay":
             grid = np.concatenate([[0.0], np.geomspace(max(r.dt / 2, 1e-5), 3e-3, 11)])
-            dl = lambda d: dict(eff, delay={"delay_s": d})  # noqa: E731
-            d, _ = _grid_then_parabola(lambda d: self.J(dl(d)), grid,
-                                       fmany=lambda ds: self.Jmany([dl(d) for d in ds]))
+            f, fm = self.along(lambda d: dict(eff, delay={"delay_s": d}))
+            d, _ = _grid_then_parabola(f, grid, fmany=fm)
             eff["delay"] = {"delay_s": float(max(d, 0.0))}
             if "lowpass" in eff:
                 eff, _ = self.line_lag(eff)  # the low-pass may have taken the delay's lag
@@ -410,8 +413,8 @@ class Fitter:
                         e["delay"] = {"delay_s": max(0.0, d0 - group_delay(p))}
                     return e
                 grid = np.log(np.geomspace(50.0, 0.4 / self.dt, 10))
-                lf, fx = _grid_then_parabola(lambda lf: self.J(lp(lf)), grid,
-                                             fmany=lambda xs: self.Jmany([lp(x) for x in xs]))
+                f, fm = self.along(lp)
+                lf, fx = _grid_then_parabola(f, grid, fmany=fm)
                 if best is None or fx < best[1]:
                     best = (lf, fx, order)
             assert best is not None
@@ -426,15 +429,13 @@ class Fitter:
             eff["creep"] = {"taus_s": [tau], "amplitudes": [c], "_norm": True}
         elif name == "drift":
             gmax = min(0.1, 0.5 / max(T, 1e-9))
-            fd = self.slow or self
-            dr = lambda g: dict(eff, drift={"gain_per_s": g, "offset": 0.0, "offset_per_s": 0.0})  # noqa: E731
-            g, _ = _grid_then_parabola(lambda g: fd.J(dr(g)), np.linspace(-gmax, gmax, 7),
-                                       fmany=lambda gs: fd.Jmany([dr(g) for g in gs]))
+            f, fm = (self.slow or self).along(
+                lambda g: dict(eff, drift={"gain_per_s": g, "offset": 0.0, "offset_per_s": 0.0}))
+            g, _ = _grid_then_parabola(f, np.linspace(-gmax, gmax, 7), fmany=fm)
             eff["drift"] = {"gain_per_s": float(g), "offset": 0.0, "offset_per_s": 0.0}
         elif name == "rate":
-            ra = lambda lt: dict(eff, rate={"gain_s": 0.0, "tau_s": math.exp(lt)})  # noqa: E731
-            lt, _ = _grid_then_parabola(lambda lt: self.J(ra(lt)), np.log(np.array([1e-3, 2e-3, 5e-3, 1e-2, 2e-2])),
-                                        fmany=lambda lts: self.Jmany([ra(x) for x in lts]))
+            f, fm = self.along(lambda lt: dict(eff, rate={"gain_s": 0.0, "tau_s": math.exp(lt)}))
+            lt, _ = _grid_then_parabola(f, np.log(np.array([1e-3, 2e-3, 5e-3, 1e-2, 2e-2])), fmany=fm)
             eff["rate"] = {"gain_s": 0.0, "tau_s": float(math.exp(lt))}
         else:
             raise ValueError(f"unknown effect {name!r}")
@@ -464,13 +465,12 @@ class Fitter:
     def creep_amp(self, eff: Effects, tau: float, c0: float = 0.03, refine: int = 2) -> tuple[float, float]:
         """The best creep amplitude for time constant ``tau`` (parabolic steps; amplitude
         0 is the chain without creep, whose error is known)."""
-        cr = lambda c: dict(eff, creep={"taus_s": [float(tau)], "amplitudes": [c], "_norm": True})  # noqa: E731
-        f = lambda c: self.J(cr(c))  # noqa: E731
+        f, fm = self.along(lambda c: dict(eff, creep={"taus_s": [float(tau)], "amplitudes": [c], "_norm": True}))
         c0 = min(max(c0, 0.01), 0.5 * CREEP_AMP_MAX)
         a, b = c0 / 3, c0
         known = {0.0: self.J({k: v for k, v in eff.items() if k != "creep"})}
         c, fx = _parabolic_search(f, [0.0, a, b], 0.0, CREEP_AMP_MAX, refine=refine, expand=4, known=known,
-                                  fmany=lambda cs: self.Jmany([cr(c) for c in cs]))
+                                  fmany=fm)
         if c == 0.0:
             # Best at no creep: the parabola through 0, a, b may still dip inside (0, a).
             fa, fb = f(a), f(b)
@@ -565,7 +565,7 @@ class Fitter:
             masks: dict[tuple[float, float], NDArray[np.intp]] = {}
             phc: dict[tuple[float, float], NDArray[np.complex128]] = {}
 
-            def band_err(p: dict[str, Any], m: tuple[float, float]) -> float:
+            def band_err(p: Optional[dict[str, Any]], m: tuple[float, float]) -> float:
                 # The mode's analog response times the rest of the chain's spectrum (the
                 # blocks commute): no simulation per trial. At most about 600 lines of the
                 # band (a mode's peak spans several at that).
@@ -702,7 +702,7 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
     eff0 = st.effects
     pre = FitState(st.model, {k: v for k, v in eff0.items() if k != "drift" and not (k == "creep" and creep)})
     full_x: list[NDArray[np.float64]] = []
-    avgs: list[Callable[[NDArray[np.float64]], NDArray[np.float64]]] = []
+    windows: list[tuple[int, slice]] = []  # per record: window length, windows in its part
     for rec, sl in data:
         if outputs is not None and id(rec) in outputs:
             x = outputs[id(rec)]
@@ -713,12 +713,11 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
         full_x.append(x)
         k = max(1, int(round(1.0 / (rec.dt * CAL_RATE_HZ))))
         start, stop, _ = sl.indices(rec.y.size)
-        cut = slice(-(-start // k), stop // k)  # the windows inside the part
-        avgs.append(lambda v, k=k, cut=cut: window_mean(v, k)[cut])
+        windows.append((k, slice(-(-start // k), stop // k)))
 
     def averaged(cols: list[NDArray[np.float64]]) -> NDArray[np.float64]:
         """A full-rate column per record, window-averaged on the records' parts."""
-        return np.concatenate([avg(c) for avg, c in zip(avgs, cols)])
+        return np.concatenate([window_mean(c, k)[cut] for (k, cut), c in zip(windows, cols)])
 
     times = [rec.t for rec, _ in data]
     x, t, y = averaged(full_x), averaged(times), averaged([rec.y for rec, _ in data])
@@ -728,7 +727,7 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
 
     def solve(extra: list[NDArray[np.float64]]) -> tuple[NDArray[np.float64], float]:
         A = np.column_stack(base + extra)
-        coef, *_ = np.linalg.lstsq(A, target, rcond=None)
+        coef = np.linalg.lstsq(A, target, rcond=None)[0].astype(np.float64)
         return coef, float(np.sum((A @ coef - target) ** 2))
 
     tau = None

@@ -90,7 +90,7 @@ impl Ldl {
         let ai = sized(&mut self.ai, nnz, 0);
         let src = sized(&mut self.src, nnz, 0);
         // `lend` serves as the fill pointers here.
-        let fill = refill(&mut self.lend, n, 0);
+        let fill = sized(&mut self.lend, n, 0);
         fill.copy_from_slice(&ap[..n]);
         for j in 0..n {
             for p in pat.colptr[j]..pat.colptr[j + 1] {
@@ -138,7 +138,7 @@ impl Ldl {
         refill(&mut self.anc, n, NONE);
         refill(&mut self.y_vals, n, 0.0);
         refill(&mut self.y_used, n, false);
-        refill(&mut self.y_idx, n, 0);
+        sized(&mut self.y_idx, n, 0);
         sized(&mut self.elim, n, 0);
         sized(&mut self.work, n, 0.0);
     }
