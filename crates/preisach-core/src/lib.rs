@@ -16,6 +16,7 @@ pub mod grid;
 pub mod identify;
 pub mod memory;
 pub mod model;
+mod pair;
 pub mod relay_grid;
 
 pub use error::{PreisachError, Result};

@@ -41,7 +41,7 @@
 //! single-pivot rule would terminate, but one flip per factorization is slower than the
 //! interior point.)
 
-use super::ldl::{amd_order, Ldl, Pattern};
+use super::ldl::{amd_order, nd_order, Ldl, Pattern};
 #[cfg(test)]
 use super::qp::everett_objective;
 use super::qp::{everett_objective_into, Problem, Solution};
@@ -224,7 +224,7 @@ impl Kkt {
     /// is that of `H + DᵀD` plus four entries per constraint, as AMD on the whole KKT
     /// pattern gives (±5 % on the benchmark sweeps and random inputs), in about 20 % less
     /// ordering time.
-    fn order(&self) -> Result<Vec<usize>> {
+    fn order(&self) -> Result<(Vec<usize>, [usize; 2])> {
         let (n, m) = (self.n, self.m);
         let dcol = |c: usize| self.colptr[n + c]..self.colptr[n + c + 1] - 1;
         // Constraints touching each Everett value.
@@ -269,7 +269,16 @@ impl Kkt {
             rowval[s0..].sort_unstable();
             colptr.push(rowval.len());
         }
-        let xorder = amd_order(&Pattern { colptr: &colptr, rowval: &rowval })?;
+        let pat = Pattern { colptr: &colptr, rowval: &rowval };
+        // Nested dissection on the Everett grid's (a, b) positions where the couplings
+        // are local, AMD where not (the offset, coupled to every value, comes last in both).
+        let xy: Vec<[u32; 2]> = (0..n)
+            .map(|v| if v + 1 < n { everett_pos(v) } else { [0, 0] })
+            .collect();
+        let (xorder, halves) = match nd_order(&pat, &xy) {
+            Some(o) => o,
+            None => (amd_order(&pat)?, [0, 0]),
+        };
         // Each multiplier just before the first of its Everett values.
         let mut pos = vec![0usize; n];
         for (k, &i) in xorder.iter().enumerate() {
@@ -293,11 +302,21 @@ impl Kkt {
             bnext[f] += 1;
         }
         let mut order = Vec::with_capacity(n + m);
-        for &i in &xorder {
+        let mut split = [0usize; 2];
+        for (k, &i) in xorder.iter().enumerate() {
             order.extend_from_slice(&before[bstart[i]..bstart[i + 1]]);
             order.push(i);
+            if k + 1 == halves[0] {
+                split[0] = order.len();
+            }
+            if k + 1 == halves[0] + halves[1] {
+                split[1] = order.len();
+            }
         }
-        Ok(order)
+        if halves[0] == 0 || halves[1] == 0 {
+            split = [0, 0];
+        }
+        Ok((order, split))
     }
 
     /// Set constraint `c` active (mass fixed to 0) or inactive (multiplier fixed to 0).
@@ -350,6 +369,19 @@ impl Kkt {
     }
 }
 
+/// `[a, b]` of the Everett value with index `v` (the inverse of [`everett_var`]).
+fn everett_pos(v: usize) -> [u32; 2] {
+    // a(a − 1)/2 <= v < a(a + 1)/2.
+    let mut a = ((1.0 + (1.0 + 8.0 * v as f64).sqrt()) / 2.0) as usize;
+    while a * (a - 1) / 2 > v {
+        a -= 1;
+    }
+    while a * (a + 1) / 2 <= v {
+        a += 1;
+    }
+    [a as u32, (v - a * (a - 1) / 2) as u32]
+}
+
 /// `everett_var(a, b)`, or 0 where a <= b (a term the caller drops).
 fn everett_var_or0(a: usize, b: usize) -> usize {
     if a > b {
@@ -376,6 +408,9 @@ pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> R
 fn solve_in(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32, scratch: &mut Scratch) -> Result<Option<Solution>> {
     let n_q = pb.rows.n_vars();
     let Scratch { trip, bucket, kkt, fact, kval } = scratch;
+    // The factorizations and solves below split over two threads: start the helper
+    // spinning now, it takes tens of microseconds to wake.
+    crate::pair::warm();
     let q = everett_objective_into(pb, trip);
     kkt.build_in(pb, trip, bucket);
     let (n, m) = (kkt.n, kkt.m);
@@ -422,8 +457,9 @@ fn solve_in(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32, scratch: &mu
     kkt.regularized(kval);
     let mut signs = vec![1i8; dim];
     signs[n..].iter_mut().for_each(|s| *s = -1);
-    let order = kkt.order()?;
+    let (order, split) = kkt.order()?;
     fact.analyze(&Pattern { colptr: &kkt.colptr, rowval: &kkt.rowval }, &order, &signs);
+    fact.set_split(split);
     if warm {
         if !fact.factor(kval, None) {
             return Ok(None);
