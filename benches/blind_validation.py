@@ -294,6 +294,9 @@ def main() -> int:
         from preisach.diagnose import diagnose
 
         names = () if a.timing in ("", "none") else tuple(a.timing.split("+"))
+        unknown = [x for x in names if x not in EFFECTS]
+        if unknown:
+            ap.error(f"--timing: unknown effect {', '.join(unknown)} (one of none, {', '.join(EFFECTS)})")
         st = make_stage(7, names, fs=100e3, dur=2.0)
         t0 = time.perf_counter()
         rep = diagnose(st["train"], [{k: h[k] for k in "tuy"} for h in st["holdouts"]], progress=True)

@@ -10,6 +10,15 @@
 //! each factorization only recomputes the elimination tree of its live pattern
 //! (O(nnz A)). A factor with few constraints coupled costs what its own, much sparser,
 //! system costs: no ordering or allocation per step.
+//!
+//! When the order puts two uncoupled halves first (a nested dissection's top level,
+//! [`Ldl::set_split`]), a factorization runs them on two threads ([`crate::pair::join`]):
+//! each half's own rows, then each half's part of every separator row (the triangular
+//! solve of that row through the half's columns, whose updates to the separator's
+//! entries are kept per row as dense deltas), then the separator's rows alone with both
+//! halves' deltas added. A solve sweeps the halves at once the same way. No fill and no
+//! result changes, only the order of summation: at n_h = 40 the ADMM warm start's full
+//! factorization takes 0.44 instead of 0.61 ms, its 20 solves 0.51 instead of 0.70 ms.
 
 const NONE: usize = usize::MAX;
 
@@ -29,6 +38,11 @@ pub struct Ldl {
     /// Pivots `0..split[0]` and `split[0]..split[1]` are uncoupled (both halves of a
     /// nested dissection, see [`Ldl::set_split`]); `[0, 0]`: no split.
     split: [usize; 2],
+    /// Whether the last factorization used the split.
+    split_now: bool,
+    /// Split whether or not a second thread is at hand (tests of the split algorithm).
+    #[cfg(test)]
+    force_split: bool,
     /// Original index of pivot k.
     order: Vec<usize>,
     /// Permuted upper triangle: per column its rows and source positions in the
@@ -208,6 +222,7 @@ impl Ldl {
         sized(&mut self.pc, n, false);
         sized(&mut self.work, n, 0.0);
         self.split = [0, 0];
+        self.split_now = false;
     }
 
     /// Entries below the diagonal in the full pattern's factor.
@@ -269,7 +284,14 @@ impl Ldl {
         for (f, &i) in self.pc.iter_mut().zip(&self.order) {
             *f = coupled.is_none_or(|c| c[i]);
         }
-        let [s0, s1] = self.split;
+        // Split only while a second thread is at hand: alone, the split costs about a
+        // tenth more than the plain up-looking order (its separator pass and deltas).
+        self.split_now = self.split != [0, 0] && crate::pair::available();
+        #[cfg(test)]
+        {
+            self.split_now |= self.force_split && self.split != [0, 0];
+        }
+        let [s0, s1] = if self.split_now { self.split } else { [0, 0] };
         let sh = Shared {
             ap: &self.ap,
             ai: &self.ai,
@@ -421,7 +443,8 @@ impl Ldl {
         for (wk, &i) in w.iter_mut().zip(&self.order) {
             *wk = x[i];
         }
-        let [s0, s1] = self.split;
+        // (As factored: the split marks `lmid` only in a split factorization.)
+        let [s0, s1] = if self.split_now { self.split } else { [0, 0] };
         let (lp, lmid, lend, li, lx) = (&self.lp, &self.lmid, &self.lend, &self.li, &self.lx);
         if s1 == 0 {
             forward(0, n, lp, lmid, lend, li, lx, &mut w[..], &mut []);
@@ -1110,6 +1133,7 @@ mod tests {
         let mut serial = Ldl::new(&pat, &order, &signs);
         let mut split = Ldl::new(&pat, &order, &signs);
         split.set_split([n0, n0 + n1]);
+        split.force_split = true;
         assert_eq!(split.split, [n0, n0 + n1]);
         // Not a valid split (empty half, separator empty): none.
         let mut other = Ldl::new(&pat, &order, &signs);
@@ -1124,6 +1148,7 @@ mod tests {
         for live in [None, Some(&some[..]), Some(&few[..]), None] {
             assert!(serial.factor(&val, live));
             assert!(split.factor(&val, live));
+            assert!(split.split_now && !serial.split_now);
             let (mut xs, mut xp) = (b.clone(), b.clone());
             serial.solve(&mut xs);
             split.solve(&mut xp);

@@ -243,6 +243,9 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
     }
     let (u_min, u_max) = min_max(u);
 
+    // The active-set solve splits its factorizations over two threads: wake the helper
+    // now, while the rows are built (see `crate::pair`).
+    let _session = crate::pair::session();
     let t_rows = std::time::Instant::now();
     let rows = build_rows(&grid, u, y, opts.interpolated);
     let time_rows_s = t_rows.elapsed().as_secs_f64();
