@@ -5,7 +5,7 @@
 //! separator alone. A solve takes 20–35 µs at n_h = 40, so the hand-off has to cost far
 //! less than a thread spawn (38–54 µs on the benchmark's VM) or a wake-up from sleep
 //! (50–150 µs measured for rayon's idle pool there). The helper therefore spins on an
-//! atomic slot while a [`Session`] (one solve) is open, about 0.1 µs per hand-off, and
+//! atomic slot while a [`Session`] (one fit) is open, about 0.1 µs per hand-off, and
 //! parks otherwise.
 //!
 //! [`join`] runs one closure on the helper and the other on the caller and returns when
@@ -19,9 +19,9 @@
 //! forked child process (which has no helper thread).
 
 use std::any::Any;
+use std::cell::Cell;
 use std::panic::{self, AssertUnwindSafe};
 use std::ptr;
-use std::cell::Cell;
 use std::sync::atomic::{AtomicBool, AtomicPtr, AtomicUsize, Ordering::*};
 use std::sync::OnceLock;
 use std::thread::{self, Thread};
@@ -91,7 +91,7 @@ struct Helper {
     busy: AtomicBool,
     /// Set by the helper before it parks.
     parked: AtomicBool,
-    /// Spin again (a [`warm`] call): the next jobs are near.
+    /// Spin again (a [`session`] call): the next jobs are near.
     nudge: AtomicBool,
     thread: Thread,
     pid: u32,

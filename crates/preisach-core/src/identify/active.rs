@@ -26,8 +26,8 @@
 //! Everett values (sweeps; AMD otherwise, see [`Kkt::order`]). Its top level splits the
 //! unknowns into two uncoupled halves and a separator, and every factorization and solve
 //! then runs the halves on two threads ([`crate::pair`]) before the separator: at
-//! n_h = 40 in the benchmark the whole solve takes 2.5 ms instead of 3.3 ms with AMD on
-//! one thread (3.0 ms with the dissection on one thread).
+//! n_h = 40 in the benchmark the whole solve takes 2.4–2.5 ms instead of 3.3 ms with AMD
+//! on one thread (3.0–3.1 ms with the dissection on one thread).
 //!
 //! From "all masses free" the method needs a dozen or more factorizations on noisy
 //! sweeps (14 at n_h = 40 in the benchmark). Without a caller's guess it therefore
