@@ -438,51 +438,181 @@ impl Ldl {
 
     /// Solve in place with the last factorization (`x` indexed like the pattern).
     pub fn solve(&mut self, x: &mut [f64]) {
-        let n = self.order.len();
+        let split = self.split_used();
         let w = &mut self.work;
         for (wk, &i) in w.iter_mut().zip(&self.order) {
             *wk = x[i];
         }
-        // (As factored: the split marks `lmid` only in a split factorization.)
-        let [s0, s1] = if self.split_now { self.split } else { [0, 0] };
-        let (lp, lmid, lend, li, lx) = (&self.lp, &self.lmid, &self.lend, &self.li, &self.lx);
-        if s1 == 0 {
-            forward(0, n, lp, lmid, lend, li, lx, &mut w[..], &mut []);
-        } else {
-            // The halves at once, each with its own copy of the separator's entries;
-            // then the separator.
-            let (wh, ws) = w.split_at_mut(s1);
-            let (w0, w1) = wh.split_at_mut(s0);
-            let [a0, a1] = &mut self.acc;
-            crate::pair::join(
-                || forward(s0, s1, lp, lmid, lend, li, lx, w1, a1),
-                || forward(0, s0, lp, lmid, lend, li, lx, w0, a0),
-            );
-            for ((v, a), b) in ws.iter_mut().zip(a0.iter_mut()).zip(a1.iter_mut()) {
-                *v += *a + *b;
-                *a = 0.0;
-                *b = 0.0;
-            }
-            forward(s1, n, lp, lmid, lend, li, lx, ws, &mut []);
-        }
-        for (wk, &di) in w.iter_mut().zip(&self.dinv) {
-            *wk *= di;
-        }
-        if s1 == 0 {
-            backward(0, n, lp, lmid, lend, li, lx, &mut w[..], &[]);
-        } else {
-            let (wh, ws) = w.split_at_mut(s1);
-            backward(s1, n, lp, lmid, lend, li, lx, ws, &[]);
-            let ws = &*ws;
-            let (w0, w1) = wh.split_at_mut(s0);
-            crate::pair::join(
-                || backward(s0, s1, lp, lmid, lend, li, lx, w1, ws),
-                || backward(0, s0, lp, lmid, lend, li, lx, w0, ws),
-            );
-        }
+        let f = Factor { lp: &self.lp, lmid: &self.lmid, lend: &self.lend, li: &self.li, lx: &self.lx, dinv: &self.dinv };
+        f.solve(split, w, &mut self.acc);
         for (wk, &i) in w.iter().zip(&self.order) {
             x[i] = *wk;
         }
+    }
+
+    /// The split of the last factorization (`[0, 0]` if it was not split: only a split
+    /// factorization marks `lmid` at the halves' ends).
+    fn split_used(&self) -> [usize; 2] {
+        if self.split_now {
+            self.split
+        } else {
+            [0, 0]
+        }
+    }
+}
+
+/// The factor as the solves read it.
+struct Factor<'a> {
+    lp: &'a [usize],
+    lmid: &'a [usize],
+    lend: &'a [usize],
+    li: &'a [u32],
+    lx: &'a [f64],
+    dinv: &'a [f64],
+}
+
+impl Factor<'_> {
+    /// `w ← (L D Lᵀ)⁻¹ w` in pivot order. With a split, the halves' forward sweeps run at
+    /// once, each collecting its updates to the separator's rows in its own `acc` (zero
+    /// on entry and on return), then the separator's; backwards the separator first, then
+    /// the halves at once.
+    fn solve<T: Lane>(&self, [s0, s1]: [usize; 2], w: &mut [T], acc: &mut [Vec<T>; 2]) {
+        let n = w.len();
+        if s1 == 0 {
+            self.forward(0, n, w, &mut []);
+        } else {
+            let (wh, ws) = w.split_at_mut(s1);
+            let (w0, w1) = wh.split_at_mut(s0);
+            let [a0, a1] = acc;
+            crate::pair::join(|| self.forward(s0, s1, w1, a1), || self.forward(0, s0, w0, a0));
+            for ((v, a), b) in ws.iter_mut().zip(a0.iter_mut()).zip(a1.iter_mut()) {
+                v.add(*a);
+                v.add(*b);
+                *a = T::ZERO;
+                *b = T::ZERO;
+            }
+            self.forward(s1, n, ws, &mut []);
+        }
+        for (wk, &di) in w.iter_mut().zip(self.dinv) {
+            wk.scale(di);
+        }
+        if s1 == 0 {
+            self.backward(0, n, w, &[]);
+        } else {
+            let (wh, ws) = w.split_at_mut(s1);
+            self.backward(s1, n, ws, &[]);
+            let ws = &*ws;
+            let (w0, w1) = wh.split_at_mut(s0);
+            crate::pair::join(|| self.backward(s0, s1, w1, ws), || self.backward(0, s0, w0, ws));
+        }
+    }
+
+    /// Forward sweep `w ← L⁻¹ w` over columns `lo..hi`, whose entries lie in rows
+    /// `lo..hi` (held by `w`) and, past `lmid`, in the separator's rows (the last
+    /// `acc.len()`, whose updates `acc` collects). With `acc` empty every entry lies in
+    /// `lo..hi`.
+    #[inline]
+    fn forward<T: Lane>(&self, lo: usize, hi: usize, w: &mut [T], acc: &mut [T]) {
+        let Factor { lp, lmid, lend, li, lx, .. } = *self;
+        let s1 = lend.len() - acc.len();
+        for j in lo..hi {
+            let wj = w[j - lo];
+            // (Right-hand sides of bordered and refinement solves are often sparse: a
+            // constraint's four coefficients or a unit vector, whose solution is nonzero
+            // only along the elimination-tree paths above them.)
+            if wj.is_zero() {
+                continue;
+            }
+            let (m, e) = if acc.is_empty() { (lend[j], lend[j]) } else { (lmid[j], lend[j]) };
+            for (&r, &l) in li[lp[j]..m].iter().zip(&lx[lp[j]..m]) {
+                w[r as usize - lo].sub_scaled(l, wj);
+            }
+            for (&r, &l) in li[m..e].iter().zip(&lx[m..e]) {
+                acc[r as usize - s1].sub_scaled(l, wj);
+            }
+        }
+    }
+
+    /// Backward sweep `w ← L⁻ᵀ w` over columns `lo..hi` (`w`: rows `lo..hi`; `ws`: the
+    /// separator's rows, already final, or empty when no entry lies past `lmid`).
+    #[inline]
+    fn backward<T: Lane>(&self, lo: usize, hi: usize, w: &mut [T], ws: &[T]) {
+        let Factor { lp, lmid, lend, li, lx, .. } = *self;
+        let s1 = lend.len() - ws.len();
+        for j in (lo..hi).rev() {
+            let m = if ws.is_empty() { lend[j] } else { lmid[j] };
+            let mut v = T::dot(&li[lp[j]..m], &lx[lp[j]..m], w, lo);
+            if !ws.is_empty() {
+                v.add(T::dot(&li[m..lend[j]], &lx[m..lend[j]], ws, s1));
+            }
+            w[j - lo].sub_scaled(1.0, v);
+        }
+    }
+}
+
+/// What a triangular sweep carries per row: one right-hand side (`f64`) or four.
+trait Lane: Copy + Send + Sync {
+    const ZERO: Self;
+    fn is_zero(&self) -> bool;
+    /// `self −= l · x`.
+    fn sub_scaled(&mut self, l: f64, x: Self);
+    fn add(&mut self, x: Self);
+    fn scale(&mut self, d: f64);
+    /// `Σ val[t] · w[idx[t] − off]`.
+    fn dot(idx: &[u32], val: &[f64], w: &[Self], off: usize) -> Self;
+}
+
+impl Lane for f64 {
+    const ZERO: f64 = 0.0;
+    #[inline(always)]
+    fn is_zero(&self) -> bool {
+        *self == 0.0
+    }
+    #[inline(always)]
+    fn sub_scaled(&mut self, l: f64, x: f64) {
+        *self -= l * x;
+    }
+    #[inline(always)]
+    fn add(&mut self, x: f64) {
+        *self += x;
+    }
+    #[inline(always)]
+    fn scale(&mut self, d: f64) {
+        *self *= d;
+    }
+    #[inline(always)]
+    fn dot(idx: &[u32], val: &[f64], w: &[f64], off: usize) -> f64 {
+        dot(idx, val, w, off)
+    }
+}
+
+impl Lane for [f64; 4] {
+    const ZERO: [f64; 4] = [0.0; 4];
+    #[inline(always)]
+    fn is_zero(&self) -> bool {
+        *self == [0.0; 4]
+    }
+    #[inline(always)]
+    fn sub_scaled(&mut self, l: f64, x: [f64; 4]) {
+        for t in 0..4 {
+            self[t] -= l * x[t];
+        }
+    }
+    #[inline(always)]
+    fn add(&mut self, x: [f64; 4]) {
+        for t in 0..4 {
+            self[t] += x[t];
+        }
+    }
+    #[inline(always)]
+    fn scale(&mut self, d: f64) {
+        for v in self.iter_mut() {
+            *v *= d;
+        }
+    }
+    #[inline(always)]
+    fn dot(idx: &[u32], val: &[f64], w: &[[f64; 4]], off: usize) -> [f64; 4] {
+        dot4(idx, val, w, off)
     }
 }
 
@@ -492,43 +622,6 @@ impl Ldl {
 fn pivot(dk: f64, sign: f64) -> Option<f64> {
     let v = if dk * sign < REG_EPS { REG_DELTA * sign } else { dk };
     v.is_finite().then_some(v)
-}
-
-/// Forward sweep `w ← L⁻¹ w` over columns `lo..hi`, whose entries lie in rows `lo..hi`
-/// (held by `w`) and, past `lmid`, in the separator's rows (the last `acc.len()`, whose
-/// updates `acc` collects). With `acc` empty every entry lies in `lo..hi`.
-#[allow(clippy::too_many_arguments)]
-#[inline]
-fn forward(lo: usize, hi: usize, lp: &[usize], lmid: &[usize], lend: &[usize], li: &[u32], lx: &[f64], w: &mut [f64], acc: &mut [f64]) {
-    let s1 = lend.len() - acc.len();
-    for j in lo..hi {
-        let wj = w[j - lo];
-        // (Right-hand sides of bordered and refinement solves are often sparse.)
-        if wj == 0.0 {
-            continue;
-        }
-        let (m, e) = if acc.is_empty() { (lend[j], lend[j]) } else { (lmid[j], lend[j]) };
-        for (&r, &l) in li[lp[j]..m].iter().zip(&lx[lp[j]..m]) {
-            w[r as usize - lo] -= l * wj;
-        }
-        for (&r, &l) in li[m..e].iter().zip(&lx[m..e]) {
-            acc[r as usize - s1] -= l * wj;
-        }
-    }
-}
-
-/// Backward sweep `w ← L⁻ᵀ w` over columns `lo..hi` (`w`: rows `lo..hi`; `ws`: the
-/// separator's rows, already final, or empty when no entry lies past `lmid`).
-#[allow(clippy::too_many_arguments)]
-#[inline]
-fn backward(lo: usize, hi: usize, lp: &[usize], lmid: &[usize], lend: &[usize], li: &[u32], lx: &[f64], w: &mut [f64], ws: &[f64]) {
-    let s1 = lend.len() - ws.len();
-    for j in (lo..hi).rev() {
-        let m = if ws.is_empty() { lend[j] } else { lmid[j] };
-        let own = dot(&li[lp[j]..m], &lx[lp[j]..m], w, lo);
-        let sep = if ws.is_empty() { 0.0 } else { dot(&li[m..lend[j]], &lx[m..lend[j]], ws, s1) };
-        w[j - lo] -= own + sep;
-    }
 }
 
 /// What both threads of a factorization read.
@@ -722,7 +815,11 @@ impl Ldl {
     /// of L read is applied to four values: about half a single solve's time each.
     pub fn solve_many(&mut self, x: &mut [f64], k: usize) {
         let n = self.order.len();
+        let split = self.split_used();
         let mut w = vec![[0.0f64; 4]; n];
+        let sep = if split[1] > 0 { n - split[1] } else { 0 };
+        let mut acc = [vec![[0.0f64; 4]; sep], vec![[0.0f64; 4]; sep]];
+        let f = Factor { lp: &self.lp, lmid: &self.lmid, lend: &self.lend, li: &self.li, lx: &self.lx, dinv: &self.dinv };
         for g in (0..k).step_by(4) {
             let kk = (k - g).min(4);
             for (t, &i) in self.order.iter().enumerate() {
@@ -730,34 +827,7 @@ impl Ldl {
                 v[..kk].copy_from_slice(&x[i * k + g..i * k + g + kk]);
                 w[t] = v;
             }
-            // Forward sweep by columns, skipping zero ones: the callers' right-hand sides
-            // are sparse (a constraint's four coefficients or a unit vector), and their
-            // solution is nonzero only along the elimination-tree paths above them.
-            let (lp, lend, li, lx) = (&self.lp, &self.lend, &self.li, &self.lx);
-            for j in 0..n {
-                let wj = w[j];
-                if wj == [0.0; 4] {
-                    continue;
-                }
-                for (&r, &l) in li[lp[j]..lend[j]].iter().zip(&lx[lp[j]..lend[j]]) {
-                    let wr = &mut w[r as usize];
-                    for t in 0..4 {
-                        wr[t] -= l * wj[t];
-                    }
-                }
-            }
-            for (wt, &di) in w.iter_mut().zip(&self.dinv) {
-                for v in wt.iter_mut() {
-                    *v *= di;
-                }
-            }
-            for j in (0..n).rev() {
-                let a = dot4(&li[lp[j]..lend[j]], &lx[lp[j]..lend[j]], &w);
-                let wj = &mut w[j];
-                for t in 0..4 {
-                    wj[t] -= a[t];
-                }
-            }
+            f.solve(split, &mut w, &mut acc);
             for (t, &i) in self.order.iter().enumerate() {
                 x[i * k + g..i * k + g + kk].copy_from_slice(&w[t][..kk]);
             }
@@ -780,22 +850,22 @@ fn refill<T: Copy>(v: &mut Vec<T>, n: usize, x: T) -> &mut [T] {
     v
 }
 
-/// `Σ val[t] · w[idx[t]]` for four right-hand sides, two partial sums each.
+/// `Σ val[t] · w[idx[t] − off]` for four right-hand sides, two partial sums each.
 #[inline(always)]
-fn dot4(idx: &[u32], val: &[f64], w: &[[f64; 4]]) -> [f64; 4] {
+fn dot4(idx: &[u32], val: &[f64], w: &[[f64; 4]], off: usize) -> [f64; 4] {
     let mut a = [0.0f64; 4];
     let mut b = [0.0f64; 4];
     let (ci, cv) = (idx.chunks_exact(2), val.chunks_exact(2));
     let (ti, tv) = (ci.remainder(), cv.remainder());
     for (i, v) in ci.zip(cv) {
-        let (p, q) = (w[i[0] as usize], w[i[1] as usize]);
+        let (p, q) = (w[i[0] as usize - off], w[i[1] as usize - off]);
         for t in 0..4 {
             a[t] += v[0] * p[t];
             b[t] += v[1] * q[t];
         }
     }
     for (&i, &v) in ti.iter().zip(tv) {
-        let p = w[i as usize];
+        let p = w[i as usize - off];
         for t in 0..4 {
             a[t] += v * p[t];
         }
@@ -1161,6 +1231,18 @@ mod tests {
             // The pivots agree too (the same elimination, summed in another order).
             for (d1, d2) in serial.d.iter().zip(&split.d) {
                 assert!((d1 - d2).abs() <= 1e-12 * d1.abs().max(1.0));
+            }
+            // Six right-hand sides at once (four, then two), interleaved: each as alone.
+            let k = 6;
+            let mut many: Vec<f64> = (0..dim * k).map(|t| ((t * 7 % 13) as f64 - 6.0) * 0.1).collect();
+            let rhs = many.clone();
+            split.solve_many(&mut many, k);
+            for j in 0..k {
+                let mut one: Vec<f64> = (0..dim).map(|i| rhs[i * k + j]).collect();
+                serial.solve(&mut one);
+                for i in 0..dim {
+                    assert!((many[i * k + j] - one[i]).abs() <= 1e-12 * scale.max(1.0), "rhs {j} row {i}");
+                }
             }
         }
     }
