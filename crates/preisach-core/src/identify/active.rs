@@ -837,6 +837,15 @@ mod tests {
     use crate::identify::rows::build_rows;
 
     #[test]
+    fn everett_positions_invert_the_variable_index() {
+        for a in 1..=300usize {
+            for b in 0..a {
+                assert_eq!(everett_pos(everett_var(a, b)), [a as u32, b as u32]);
+            }
+        }
+    }
+
+    #[test]
     fn bordered_solve_equals_a_refactorization_after_constraints_switch() {
         // A small noisy identification problem; factor the KKT matrix of one active set,
         // switch some constraints on and some off, and solve both ways.
