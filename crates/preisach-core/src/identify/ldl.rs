@@ -292,131 +292,54 @@ impl Ldl {
             self.split_now |= self.force_split && self.split != [0, 0];
         }
         let [s0, s1] = if self.split_now { self.split } else { [0, 0] };
-        let sh = Shared {
-            ap: &self.ap,
-            ai: &self.ai,
-            src: &self.src,
-            lp: &self.lp,
-            signs: &self.signs,
-            pc: &self.pc,
-            val,
-            n,
-            s1,
-        };
-        self.lend.copy_from_slice(&self.lp[..n]);
+        let Ldl { ap, ai, src, lp, signs, pc, lend, lmid, li, lx, d, dinv, etree, anc, live, ax, w, .. } = self;
+        let sh = Shared { ap, ai, src, lp, signs, pc, val, n, s1 };
+        lend.copy_from_slice(&lp[..n]);
+        let mut all = Half { lo: 0, hi: n, lend, lmid, li, lx, d, dinv, etree, anc, live, ax };
+        let [w0, w1] = w;
         if s1 == 0 {
-            let mut h = Half::new(0, n, &sh, &mut self.lend, &mut self.lmid, &mut self.li, &mut self.lx,
-                &mut self.d, &mut self.dinv, &mut self.etree, &mut self.anc, &mut self.live, &mut self.ax);
-            return h.rows(&sh, &mut self.w[0]);
+            return all.rows(&sh, w0);
         }
         // Both halves at once: rows, then their parts of the separator's rows.
-        let (ok0, ok1) = {
-            let (lend0, lend1) = self.lend.split_at_mut(s0);
-            let (lmid0, lmid1) = self.lmid.split_at_mut(s0);
-            let (li0, li1) = self.li.split_at_mut(self.lp[s0]);
-            let (lx0, lx1) = self.lx.split_at_mut(self.lp[s0]);
-            let (d0, d1) = self.d.split_at_mut(s0);
-            let (dinv0, dinv1) = self.dinv.split_at_mut(s0);
-            let (et0, et1) = self.etree.split_at_mut(s0);
-            let (anc0, anc1) = self.anc.split_at_mut(s0);
-            let (live0, live1) = self.live.split_at_mut(self.ap[s0]);
-            let (ax0, ax1) = self.ax.split_at_mut(self.ap[s0]);
-            let mut h0 = Half::new(0, s0, &sh, lend0, lmid0, li0, lx0, d0, dinv0, et0, anc0, live0, ax0);
-            let mut h1 = Half::new(s0, s1, &sh, lend1, lmid1, li1, lx1, d1, dinv1, et1, anc1, live1, ax1);
-            let [w0, w1] = &mut self.w;
-            let (mut ok0, mut ok1) = (false, false);
-            crate::pair::join(
-                || {
-                    ok1 = h1.rows(&sh, w1);
-                    h1.separator(&sh, w1);
-                },
-                || {
-                    ok0 = h0.rows(&sh, w0);
-                    h0.separator(&sh, w0);
-                },
-            );
-            (ok0, ok1)
-        };
+        let (mut h0, mut h1) = all.split_at(s0, &sh);
+        h1.hi = s1;
+        let (mut ok0, mut ok1) = (false, false);
+        crate::pair::join(
+            || {
+                ok1 = h1.rows(&sh, w1);
+                h1.separator(&sh, w1);
+            },
+            || {
+                ok0 = h0.rows(&sh, w0);
+                h0.separator(&sh, w0);
+            },
+        );
         if !(ok0 && ok1) {
             return false;
         }
         // The separator's rows: their elimination tree (Liu's algorithm, through the
-        // ancestors the halves left), then the rest of each row.
-        let Ldl { ap, ai, src, lp, lend, li, lx, d, dinv, etree, anc, live, ax, signs, pc, w, .. } = self;
-        for k in s1..n {
-            etree[k] = NONE;
-            anc[k] = NONE;
-            let ck = pc[k];
-            for p in ap[k]..ap[k + 1] {
-                ax[p] = val[src[p]];
-                let i0 = ai[p] as usize;
-                let l = ck && pc[i0] && i0 != k;
-                live[p] = l || i0 == k;
-                if !l {
-                    continue;
-                }
-                let mut i = i0;
-                while i != NONE && i < k {
-                    let next = anc[i];
-                    anc[i] = k;
-                    if next == NONE {
-                        etree[i] = k;
-                    }
-                    i = next;
-                }
-            }
-        }
-        let [w0, w1] = w;
+        // ancestors the halves left), then the rest of each row with the halves' deltas
+        // and their paths into the separator.
+        all.etree_rows(&sh, s1..n);
         for k in s1..n {
             let t = k - s1;
             let mut nnz_y = 0;
-            let mut dk = 0.0;
-            for p in ap[k]..ap[k + 1] {
-                let b = ai[p] as usize;
-                if !live[p] || b < s1 {
-                    continue;
-                }
-                if b == k {
-                    dk = ax[p];
-                    continue;
-                }
-                w0.y_vals[b] += ax[p];
-                w0.reach(b, k, etree, 0, &mut nnz_y);
-            }
-            // The halves' deltas, and their paths into the separator.
+            let mut dk = all.load_row(&sh, k, s1, w0, &mut nnz_y);
             let off = t * (t + 1) / 2 - t;
             for ((y, a), b) in w0.y_vals[s1..k].iter_mut().zip(&w0.tri[off..off + t]).zip(&w1.tri[off..off + t]) {
                 *y += a + b;
             }
             for e in w0.eptr[t]..w0.eptr[t + 1] {
                 let r = w0.eidx[e] as usize;
-                w0.reach(r, k, etree, 0, &mut nnz_y);
+                w0.reach(r, k, all.etree, 0, &mut nnz_y);
             }
             for e in w1.eptr[t]..w1.eptr[t + 1] {
-                w0.reach(w1.eidx[e] as usize, k, etree, 0, &mut nnz_y);
+                w0.reach(w1.eidx[e] as usize, k, all.etree, 0, &mut nnz_y);
             }
             dk += w0.sd[t] + w1.sd[t];
-            for q in (0..nnz_y).rev() {
-                let c = w0.y_idx[q];
-                let end = lend[c];
-                let yc = w0.y_vals[c];
-                for (&r, &l) in li[lp[c]..end].iter().zip(&lx[lp[c]..end]) {
-                    w0.y_vals[r as usize] -= l * yc;
-                }
-                let lkc = yc * dinv[c];
-                li[end] = k as u32;
-                lx[end] = lkc;
-                dk -= yc * lkc;
-                lend[c] = end + 1;
-                w0.y_vals[c] = 0.0;
-                w0.y_used[c] = false;
-            }
-            match pivot(dk, signs[k]) {
-                Some(v) => {
-                    d[k] = v;
-                    dinv[k] = 1.0 / v;
-                }
-                None => return false,
+            let dk = all.eliminate::<false>(&sh, k, nnz_y, dk, w0);
+            if !all.set_pivot(&sh, k, dk) {
+                return false;
             }
         }
         true
@@ -638,14 +561,12 @@ struct Shared<'a> {
     s1: usize,
 }
 
-/// One half's rows and columns `lo..hi` of a factorization: its slices of the factor
-/// (column storage from `base = lp[lo]`) and of the permuted matrix (entries from
-/// `pbase = ap[lo]`).
+/// The rows and columns `lo..hi` of a factorization (a half, or all of them): slices of
+/// the factor and of the permuted matrix starting at column `lo` (the factor's storage
+/// at `lp[lo]`, the matrix's entries at `ap[lo]`).
 struct Half<'a> {
     lo: usize,
     hi: usize,
-    base: usize,
-    pbase: usize,
     lend: &'a mut [usize],
     lmid: &'a mut [usize],
     li: &'a mut [u32],
@@ -658,32 +579,48 @@ struct Half<'a> {
     ax: &'a mut [f64],
 }
 
-impl<'a> Half<'a> {
-    #[allow(clippy::too_many_arguments)]
-    fn new(
-        lo: usize,
-        hi: usize,
-        sh: &Shared,
-        lend: &'a mut [usize],
-        lmid: &'a mut [usize],
-        li: &'a mut [u32],
-        lx: &'a mut [f64],
-        d: &'a mut [f64],
-        dinv: &'a mut [f64],
-        etree: &'a mut [usize],
-        anc: &'a mut [usize],
-        live: &'a mut [bool],
-        ax: &'a mut [f64],
-    ) -> Self {
-        Half { lo, hi, base: sh.lp[lo], pbase: sh.ap[lo], lend, lmid, li, lx, d, dinv, etree, anc, live, ax }
+impl Half<'_> {
+    /// Columns `lo..at` and `at..hi`, borrowed from this one.
+    fn split_at(&mut self, at: usize, sh: &Shared) -> (Half<'_>, Half<'_>) {
+        let (c, l, e) = (at - self.lo, sh.lp[at] - sh.lp[self.lo], sh.ap[at] - sh.ap[self.lo]);
+        let (lend0, lend1) = self.lend.split_at_mut(c);
+        let (lmid0, lmid1) = self.lmid.split_at_mut(c);
+        let (li0, li1) = self.li.split_at_mut(l);
+        let (lx0, lx1) = self.lx.split_at_mut(l);
+        let (d0, d1) = self.d.split_at_mut(c);
+        let (dinv0, dinv1) = self.dinv.split_at_mut(c);
+        let (et0, et1) = self.etree.split_at_mut(c);
+        let (anc0, anc1) = self.anc.split_at_mut(c);
+        let (live0, live1) = self.live.split_at_mut(e);
+        let (ax0, ax1) = self.ax.split_at_mut(e);
+        (
+            Half { lo: self.lo, hi: at, lend: lend0, lmid: lmid0, li: li0, lx: lx0, d: d0, dinv: dinv0, etree: et0, anc: anc0, live: live0, ax: ax0 },
+            Half { lo: at, hi: self.hi, lend: lend1, lmid: lmid1, li: li1, lx: lx1, d: d1, dinv: dinv1, etree: et1, anc: anc1, live: live1, ax: ax1 },
+        )
     }
 
     /// Factor rows `lo..hi` (their entries all lie in columns `lo..hi`).
     fn rows(&mut self, sh: &Shared, w: &mut Work) -> bool {
-        let (lo, hi, base, pbase) = (self.lo, self.hi, self.base, self.pbase);
-        // Live entries and the elimination tree of the live pattern (Liu's algorithm
-        // with path compression).
-        for k in lo..hi {
+        self.etree_rows(sh, self.lo..self.hi);
+        for k in self.lo..self.hi {
+            // Row k of L: solve L(0:k, 0:k) y = A(0:k, k), pattern from the etree.
+            let mut nnz_y = 0;
+            let dk = self.load_row(sh, k, self.lo, w, &mut nnz_y);
+            let dk = self.eliminate::<false>(sh, k, nnz_y, dk, w);
+            if !self.set_pivot(sh, k, dk) {
+                return false;
+            }
+        }
+        self.lmid.copy_from_slice(self.lend);
+        true
+    }
+
+    /// Values, live entries and elimination tree of the live pattern for rows `ks`
+    /// (Liu's algorithm with path compression; the rows' entries lie in columns
+    /// `lo..`).
+    fn etree_rows(&mut self, sh: &Shared, ks: std::ops::Range<usize>) {
+        let (lo, pbase) = (self.lo, sh.ap[self.lo]);
+        for k in ks {
             self.etree[k - lo] = NONE;
             self.anc[k - lo] = NONE;
             let ck = sh.pc[k];
@@ -706,56 +643,77 @@ impl<'a> Half<'a> {
                 }
             }
         }
-        let Half { lend, lmid, li, lx, d, dinv, etree, live, ax, .. } = self;
-        for k in lo..hi {
-            // Row k of L: solve L(0:k, 0:k) y = A(0:k, k), pattern from the etree.
-            let mut nnz_y = 0;
-            let mut dk = 0.0;
-            for p in sh.ap[k]..sh.ap[k + 1] {
-                if !live[p - pbase] {
-                    continue;
-                }
-                let b = sh.ai[p] as usize;
-                if b == k {
-                    dk = ax[p - pbase];
-                    continue;
-                }
-                w.y_vals[b] = ax[p - pbase];
-                w.reach(b, k, etree, lo, &mut nnz_y);
+    }
+
+    /// Row k's live entries in columns `from..k` into `w` (values and pattern); returns
+    /// its diagonal.
+    fn load_row(&self, sh: &Shared, k: usize, from: usize, w: &mut Work, nnz_y: &mut usize) -> f64 {
+        let pbase = sh.ap[self.lo];
+        let mut dk = 0.0;
+        for p in sh.ap[k]..sh.ap[k + 1] {
+            let b = sh.ai[p] as usize;
+            if !self.live[p - pbase] || b < from {
+                continue;
             }
-            for t in (0..nnz_y).rev() {
-                let c = w.y_idx[t];
-                let (s, end) = (sh.lp[c] - base, lend[c - lo] - base);
-                let yc = w.y_vals[c];
-                for (&r, &l) in li[s..end].iter().zip(&lx[s..end]) {
-                    w.y_vals[r as usize] -= l * yc;
-                }
-                let lkc = yc * dinv[c - lo];
-                li[end] = k as u32;
-                lx[end] = lkc;
-                dk -= yc * lkc;
-                lend[c - lo] += 1;
-                w.y_vals[c] = 0.0;
-                w.y_used[c] = false;
+            if b == k {
+                dk = self.ax[p - pbase];
+                continue;
             }
-            match pivot(dk, sh.signs[k]) {
-                Some(v) => {
-                    d[k - lo] = v;
-                    dinv[k - lo] = 1.0 / v;
-                }
-                None => return false,
-            }
+            w.y_vals[b] += self.ax[p - pbase];
+            w.reach(b, k, self.etree, self.lo, nnz_y);
         }
-        lmid.copy_from_slice(&lend[..]);
-        true
+        dk
+    }
+
+    /// Eliminate row k's pattern (`w.y_idx[..nnz_y]`, columns in `lo..hi`): scatter each
+    /// column into the rows below, append L(k, c); returns the pivot less their share.
+    /// With `SEP` (a half's part of a separator row) also record where the half's
+    /// roots continue into the separator.
+    #[inline]
+    fn eliminate<const SEP: bool>(&mut self, sh: &Shared, k: usize, nnz_y: usize, mut dk: f64, w: &mut Work) -> f64 {
+        let (lo, base) = (self.lo, sh.lp[self.lo]);
+        let Half { lend, lmid, li, lx, dinv, etree, .. } = self;
+        let Work { y_vals, y_used, y_idx, eidx, .. } = w;
+        for &c in y_idx[..nnz_y].iter().rev() {
+            let (s, end) = (sh.lp[c] - base, lend[c - lo] - base);
+            let yc = y_vals[c];
+            for (&r, &l) in li[s..end].iter().zip(&lx[s..end]) {
+                y_vals[r as usize] -= l * yc;
+            }
+            // A root of the half's forest: its path continues at its first separator
+            // row (if that lies before k).
+            if SEP && etree[c - lo] == NONE && lmid[c - lo] - base < end {
+                eidx.push(li[lmid[c - lo] - base]);
+            }
+            let lkc = yc * dinv[c - lo];
+            li[end] = k as u32;
+            lx[end] = lkc;
+            dk -= yc * lkc;
+            lend[c - lo] += 1;
+            y_vals[c] = 0.0;
+            y_used[c] = false;
+        }
+        dk
+    }
+
+    /// Store pivot k (regularized, see [`pivot`]); false if not finite.
+    fn set_pivot(&mut self, sh: &Shared, k: usize, dk: f64) -> bool {
+        match pivot(dk, sh.signs[k]) {
+            Some(v) => {
+                self.d[k - self.lo] = v;
+                self.dinv[k - self.lo] = 1.0 / v;
+                true
+            }
+            None => false,
+        }
     }
 
     /// This half's part of every separator row k: the solve through its columns, whose
     /// entries of row k it appends, and the deltas that part adds to the separator's
     /// entries of row k and to its pivot (in `w`'s lists, for the caller to finish).
+    /// (Live entries are judged from the coupled flags: the separator rows' own pass
+    /// comes later.)
     fn separator(&mut self, sh: &Shared, w: &mut Work) {
-        let (lo, hi, base) = (self.lo, self.hi, self.base);
-        let Half { lend, lmid, li, lx, dinv, etree, .. } = self;
         let ns = sh.n - sh.s1;
         sized(&mut w.tri, ns * ns.saturating_sub(1) / 2, 0.0);
         w.sd.clear();
@@ -765,38 +723,19 @@ impl<'a> Half<'a> {
         for k in sh.s1..sh.n {
             let t = k - sh.s1;
             let mut nnz_y = 0;
-            let mut dk = 0.0;
             if sh.pc[k] {
                 for p in sh.ap[k]..sh.ap[k + 1] {
                     let b = sh.ai[p] as usize;
-                    if b < lo || b >= hi || !sh.pc[b] {
+                    if b < self.lo || b >= self.hi || !sh.pc[b] {
                         continue;
                     }
                     w.y_vals[b] = sh.val[sh.src[p]];
-                    w.reach(b, k, etree, lo, &mut nnz_y);
+                    w.reach(b, k, self.etree, self.lo, &mut nnz_y);
                 }
             }
-            for q in (0..nnz_y).rev() {
-                let c = w.y_idx[q];
-                let (s, m, end) = (sh.lp[c] - base, lmid[c - lo] - base, lend[c - lo] - base);
-                let yc = w.y_vals[c];
-                // Into the half's rows and (this thread's copy of) the separator's.
-                for (&r, &l) in li[s..end].iter().zip(&lx[s..end]) {
-                    w.y_vals[r as usize] -= l * yc;
-                }
-                // A root of the half's forest: its path continues at its first
-                // separator row (if that lies before k).
-                if etree[c - lo] == NONE && m < end {
-                    w.eidx.push(li[m]);
-                }
-                let lkc = yc * dinv[c - lo];
-                li[end] = k as u32;
-                lx[end] = lkc;
-                dk -= yc * lkc;
-                lend[c - lo] += 1;
-                w.y_vals[c] = 0.0;
-                w.y_used[c] = false;
-            }
+            // Into the half's rows and (this thread's copy of) the separator's, then
+            // moved to the row's deltas.
+            let dk = self.eliminate::<true>(sh, k, nnz_y, 0.0, w);
             let tri = &mut w.tri[t * (t + 1) / 2 - t..][..t];
             for (d, y) in tri.iter_mut().zip(&mut w.y_vals[sh.s1..k]) {
                 *d = *y;
@@ -807,7 +746,6 @@ impl<'a> Half<'a> {
         }
     }
 }
-
 
 impl Ldl {
     /// Solve in place for `k` right-hand sides at once: `x` holds them row-interleaved
