@@ -7,7 +7,6 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 
-
 #[path = "common.rs"]
 mod common;
 use common::smooth_model;

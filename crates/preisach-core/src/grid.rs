@@ -30,10 +30,7 @@ impl Grid {
         check_scalar("u_range", lo)?;
         check_scalar("u_range", hi)?;
         if lo >= hi {
-            return Err(PreisachError::invalid(
-                "u_range",
-                format!("lo must be below hi, got ({lo}, {hi})"),
-            ));
+            return Err(PreisachError::invalid("u_range", format!("lo must be below hi, got ({lo}, {hi})")));
         }
         if n_h < 1 {
             return Err(PreisachError::invalid("n_h", format!("must be >= 1, got {n_h}")));

@@ -269,7 +269,13 @@ pub fn monotone_level(model: &PreisachModel, mem: &StepMemory, r: f64, r_prev: f
 /// starting after the reference `r_prev` ([`NO_PREVIOUS_REFERENCE`] for a fresh run).
 /// Writes the input levels to `out`, returns the number of saturated samples and the
 /// last reference. `r` must be finite (checked by the caller).
-pub fn monotone_run(model: &PreisachModel, mem: &mut StepMemory, mut r_prev: f64, r: &[f64], out: &mut [f64]) -> (u64, f64) {
+pub fn monotone_run(
+    model: &PreisachModel,
+    mem: &mut StepMemory,
+    mut r_prev: f64,
+    r: &[f64],
+    out: &mut [f64],
+) -> (u64, f64) {
     let tol = tolerance(model);
     let e = model.e_step();
     let mut sat = 0u64;
@@ -347,7 +353,15 @@ pub fn continuous_position(model: &PreisachModel, imem: &InterpMemory, r: f64, t
 /// `thr` (see the module notes on diagonal cells) the bracket collapses onto the jump
 /// and the end whose output is nearer `thr` is returned.
 #[inline]
-fn regula_falsi<Y: Fn(f64) -> f64>(y: &Y, thr: f64, mut a: f64, mut ya: f64, mut b: f64, mut yb: f64, half: f64) -> f64 {
+fn regula_falsi<Y: Fn(f64) -> f64>(
+    y: &Y,
+    thr: f64,
+    mut a: f64,
+    mut ya: f64,
+    mut b: f64,
+    mut yb: f64,
+    half: f64,
+) -> f64 {
     if (yb - thr).abs() <= half {
         return b;
     }
@@ -504,14 +518,7 @@ impl Interpolator {
                 format!("{lookahead} is too large for streaming (limit {MAX_LOOKAHEAD} samples)"),
             ));
         }
-        Ok(Interpolator {
-            lookahead,
-            lo,
-            t: 0,
-            u_prev: lo,
-            last_cm: lo,
-            knots: VecDeque::with_capacity(lookahead + 2),
-        })
+        Ok(Interpolator { lookahead, lo, t: 0, u_prev: lo, last_cm: lo, knots: VecDeque::with_capacity(lookahead + 2) })
     }
 
     pub fn lookahead(&self) -> usize {

@@ -24,6 +24,6 @@ pub use grid::Grid;
 pub use memory::Memory;
 pub use model::PreisachModel;
 pub use relay_grid::RelayGrid;
-pub mod invert;
 pub mod blocks;
+pub mod invert;
 pub mod sim;

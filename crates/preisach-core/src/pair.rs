@@ -141,7 +141,11 @@ impl Helper {
         let mut spins = 0u32;
         loop {
             // Read-only polling (a swap would take the cache line from the caller).
-            let p = if self.slot.load(Relaxed).is_null() { ptr::null_mut() } else { self.slot.swap(ptr::null_mut(), Acquire) };
+            let p = if self.slot.load(Relaxed).is_null() {
+                ptr::null_mut()
+            } else {
+                self.slot.swap(ptr::null_mut(), Acquire)
+            };
             if !p.is_null() {
                 // SAFETY: `join` published a pointer to a `Job` on its stack; once this
                 // swap has taken it, `join` can no longer take it back and does not

@@ -84,7 +84,10 @@ fn closest_match_is_optimal_at_every_sample_and_ties_go_to_the_nearest_level() {
             if err.iter().filter(|&&e| e <= e_min + 0.5 * tol).count() > 1 {
                 ties_seen += 1;
             }
-            let (ylo, yhi) = (ys.iter().cloned().fold(f64::INFINITY, f64::min), ys.iter().cloned().fold(f64::NEG_INFINITY, f64::max));
+            let (ylo, yhi) = (
+                ys.iter().cloned().fold(f64::INFINITY, f64::min),
+                ys.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
+            );
             if x < ylo - tol || x > yhi + tol {
                 n_sat += 1;
             }
@@ -242,7 +245,11 @@ fn monotone_closest_match_is_optimal_among_the_levels_on_the_references_side() {
             assert!(allowed.contains(&k), "trial {trial} t={t}: level {k} against the reference (from {p})");
             let err = |j: usize| (ys[j] - x).abs();
             let e_min = allowed.iter().map(|&j| err(j)).fold(f64::INFINITY, f64::min);
-            assert!(err(k) <= e_min + 2.0 * tol, "trial {trial} t={t}: level {k} err {} > best allowed {e_min}", err(k));
+            assert!(
+                err(k) <= e_min + 2.0 * tol,
+                "trial {trial} t={t}: level {k} err {} > best allowed {e_min}",
+                err(k)
+            );
             for &j in &allowed {
                 if j.abs_diff(p) < k.abs_diff(p) {
                     assert!(err(j) > e_min + 0.5 * tol, "trial {trial} t={t}: level {j} nearer {p} ties with {k}");
@@ -256,7 +263,10 @@ fn monotone_closest_match_is_optimal_among_the_levels_on_the_references_side() {
             if e_all + tol < e_min {
                 restricted_seen += 1;
             }
-            let (ylo, yhi) = (ys.iter().cloned().fold(f64::INFINITY, f64::min), ys.iter().cloned().fold(f64::NEG_INFINITY, f64::max));
+            let (ylo, yhi) = (
+                ys.iter().cloned().fold(f64::INFINITY, f64::min),
+                ys.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
+            );
             if x < ylo - tol || x > yhi + tol {
                 n_sat_oracle += 1;
                 assert!(s);
@@ -289,7 +299,15 @@ fn segmented_reference(rng: &mut Rng, model: &PreisachModel, n_seg: usize) -> (V
         x = if dir > 0.0 { x.min(hi - 0.05 * span) } else { x.max(lo + 0.05 * span) };
         for i in 0..len {
             let c = rng.uniform();
-            let d = if i == 0 { 0.01 * span + slope } else if c < 0.1 { 0.0 } else if c < 0.13 { 0.2 * span } else { slope * rng.uniform() };
+            let d = if i == 0 {
+                0.01 * span + slope
+            } else if c < 0.1 {
+                0.0
+            } else if c < 0.13 {
+                0.2 * span
+            } else {
+                slope * rng.uniform()
+            };
             x = (x + dir * d).clamp(lo, hi);
             r.push(x);
         }
@@ -309,7 +327,12 @@ fn assert_unimodal(u: &[f64], a: usize, end: usize, dir: f64, what: &str) {
         if d > 0.0 {
             turned = true;
         } else if d < 0.0 {
-            assert!(!turned, "{what}: u moves against the reference at t={t} in [{a}, {end}] ({} -> {})", u[t - 1], u[t]);
+            assert!(
+                !turned,
+                "{what}: u moves against the reference at t={t} in [{a}, {end}] ({} -> {})",
+                u[t - 1],
+                u[t]
+            );
         }
     }
 }
@@ -390,7 +413,14 @@ fn streaming_interpolation_equals_offline_delayed_by_the_lookahead() {
         // The offline interpolation starts from the monotone closest match's own values.
         let cm = monotone_cm(&model, &r);
         assert_eq!(off[0], cm[0]);
-        assert_eq!(off[r.len() - 1], if cm[r.len() - 1] != cm[r.len() - 2] { 0.5 * (cm[r.len() - 2] + cm[r.len() - 1]) } else { cm[r.len() - 1] });
+        assert_eq!(
+            off[r.len() - 1],
+            if cm[r.len() - 1] != cm[r.len() - 2] {
+                0.5 * (cm[r.len() - 2] + cm[r.len() - 1])
+            } else {
+                cm[r.len() - 1]
+            }
+        );
     }
 }
 
@@ -446,7 +476,10 @@ fn method_and_lookahead_are_validated() {
     assert!(e.starts_with("method: expected one of"), "{e}");
     let mut rng = Rng::new(17);
     let model = Arc::new(random_model(&mut rng, 5));
-    assert!(Inverter::new(model.clone(), Method::Interpolated, None).unwrap_err().to_string().starts_with("lookahead:"));
+    assert!(Inverter::new(model.clone(), Method::Interpolated, None)
+        .unwrap_err()
+        .to_string()
+        .starts_with("lookahead:"));
     assert!(Inverter::new(model.clone(), Method::Closest, Some(3)).unwrap_err().to_string().starts_with("lookahead:"));
     assert!(invert::invert(&model, &[0.0], Method::Continuous, Some(0)).is_err());
     let mut inv = Inverter::new(model, Method::Interpolated, Some(4)).unwrap();

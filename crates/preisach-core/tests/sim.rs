@@ -53,9 +53,8 @@ fn zoh_mode_matches_the_analytic_step_response() {
 
 #[test]
 fn modes_in_series_keep_unit_dc_gain() {
-    let p = VibrationParams {
-        modes: vec![Mode { freq_hz: 780.0, damping: 0.2 }, Mode { freq_hz: 2300.0, damping: 0.1 }],
-    };
+    let p =
+        VibrationParams { modes: vec![Mode { freq_hz: 780.0, damping: 0.2 }, Mode { freq_hz: 2300.0, damping: 0.1 }] };
     let mut v = Vibration::new(p, FS).unwrap();
     let mut y = v.step(0.0); // at rest at 0, then a step
     for _ in 0..100_000 {
@@ -167,7 +166,7 @@ fn creep_log_law_grows_about_gamma_per_decade() {
     let mut c = Creep::new(CreepParams::log_law(0.01, 0.01, 100.0), 1000.0).unwrap();
     c.step(0.0); // at rest at 0, then a unit step
     let y: Vec<f64> = (0..100_000).map(|_| c.step(1.0)).collect(); // 100 s at 1 kHz
-    // Between 0.1 s and 10 s (inside the τ span) the growth is ~2 decades · 1 %.
+                                                                   // Between 0.1 s and 10 s (inside the τ span) the growth is ~2 decades · 1 %.
     let g = y[9_999] - y[99];
     assert!((g - 0.02).abs() < 0.004, "growth over two decades {g}");
 }
@@ -202,7 +201,7 @@ fn amplifier_gain_saturation_and_slew() {
     let p = AmplifierParams { gain: 20.0, saturation: Some([-30.0, 150.0]), slew_v_per_s: Some(1e6) };
     let mut a = Amplifier::new(p, FS).unwrap();
     assert_eq!(a.step(0.0), 0.0); // at rest at 0, then a step
-    // 1e6 V/s at 100 kHz = 10 V per sample.
+                                  // 1e6 V/s at 100 kHz = 10 V per sample.
     let ys: Vec<f64> = (0..20).map(|_| a.step(10.0)).collect();
     for (k, y) in ys.iter().enumerate() {
         assert_eq!(*y, (10.0 * (k + 1) as f64).min(150.0));
@@ -396,10 +395,16 @@ fn bad_parameters_are_rejected_by_name() {
         (r#"{"type": "quantizer", "bits": 8, "range": [1, 0]}"#, "range"),
         (r#"{"type": "amplifier", "saturation": [5, 1]}"#, "saturation"),
         (r#"{"type": "amplifier", "slew_v_per_s": 0}"#, "slew_v_per_s"),
-        (r#"{"type": "hysteresis", "source": "identified", "lo": 0, "hi": 1, "n_h": 2, "weights": [1, -0.5, 2]}"#, "weights"),
+        (
+            r#"{"type": "hysteresis", "source": "identified", "lo": 0, "hi": 1, "n_h": 2, "weights": [1, -0.5, 2]}"#,
+            "weights",
+        ),
         (r#"{"type": "hysteresis", "source": "identified", "lo": 0, "hi": 1, "n_h": 2, "weights": [1]}"#, "weights"),
-        (r#"{"type": "hysteresis", "source": "parametric", "lo": 0, "hi": 150, "hysteretic_stroke": 30,
-             "coercivity_median": -1, "coercivity_sigma": 0.5, "interaction_sigma": 40}"#, "coercivity_median"),
+        (
+            r#"{"type": "hysteresis", "source": "parametric", "lo": 0, "hi": 150, "hysteretic_stroke": 30,
+             "coercivity_median": -1, "coercivity_sigma": 0.5, "interaction_sigma": 40}"#,
+            "coercivity_median",
+        ),
     ];
     for (block, name) in cases {
         let text = format!(r#"{{"version": 1, "sample_rate_hz": 100000, "blocks": [{block}]}}"#);
@@ -411,8 +416,8 @@ fn bad_parameters_are_rejected_by_name() {
     // Non-finite values (JSON has none: build directly).
     let e = Creep::new(CreepParams { gains: vec![f64::NAN], time_constants_s: vec![1.0] }, FS).unwrap_err();
     assert_eq!(err_name(e), "gains[0]");
-    let e = Vibration::new(VibrationParams { modes: vec![Mode { freq_hz: f64::INFINITY, damping: 0.1 }] }, FS)
-        .unwrap_err();
+    let e =
+        Vibration::new(VibrationParams { modes: vec![Mode { freq_hz: f64::INFINITY, damping: 0.1 }] }, FS).unwrap_err();
     assert_eq!(err_name(e), "modes[0].freq_hz");
     let e = Delay::new(DelayParams { delay_s: f64::NAN }, FS).unwrap_err();
     assert_eq!(err_name(e), "delay_s");
@@ -584,11 +589,9 @@ fn paper_stage_is_at_rest_from_the_first_sample() {
 
 #[test]
 fn reset_state_keeps_absolute_time_and_settles_again() {
-    let mut c = preset(
-        "paper",
-        r#"{"noise_std": 0, "dac_bits": 0, "adc_bits": 0, "drift_offset_per_s": 1.0, "creep": false}"#,
-    )
-    .unwrap();
+    let mut c =
+        preset("paper", r#"{"noise_std": 0, "dac_bits": 0, "adc_bits": 0, "drift_offset_per_s": 1.0, "creep": false}"#)
+            .unwrap();
     let y1: Vec<f64> = (0..1000).map(|k| c.step(2.0 + (k as f64 * 0.01).sin())).collect();
     let t = c.time_s();
     assert!((t - 0.01).abs() < 1e-12);
@@ -600,11 +603,9 @@ fn reset_state_keeps_absolute_time_and_settles_again() {
         let drift = (k as f64) / FS; // offset_per_s = 1 per second since the first
         assert!((v - y2[0] - drift).abs() < 1e-9, "k={k}: {v} vs {}", y2[0] + drift);
     }
-    let mut fresh = preset(
-        "paper",
-        r#"{"noise_std": 0, "dac_bits": 0, "adc_bits": 0, "drift_offset_per_s": 1.0, "creep": false}"#,
-    )
-    .unwrap();
+    let mut fresh =
+        preset("paper", r#"{"noise_std": 0, "dac_bits": 0, "adc_bits": 0, "drift_offset_per_s": 1.0, "creep": false}"#)
+            .unwrap();
     assert!((y2[0] - fresh.step(1.0) - t).abs() < 1e-9, "drift offset at t = 0.01 s is included");
     // A full reset replays the first record exactly.
     c.reset();

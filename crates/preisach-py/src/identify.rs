@@ -10,9 +10,9 @@ use numpy::{PyReadonlyArray2, PyUntypedArrayMethods};
 use preisach_core::identify::filtered::{
     fit_behind as core_fit_behind, Behind as CoreBehind, BehindOptions, Cascade, Lti, LtiBlock, Terms,
 };
-use pyo3::exceptions::PyValueError;
 use preisach_core::identify::{build_rows, fit as core_fit, FitOptions, Solver};
 use preisach_core::Grid;
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -36,13 +36,8 @@ fn fit<'py>(
         if n_h < 1 {
             return Err(to_py(preisach_core::PreisachError::invalid("n_h", format!("must be >= 1, got {n_h}"))));
         }
-        let opts = FitOptions {
-            n_h: n_h as usize,
-            u_range,
-            reg,
-            solver: Solver::parse(solver).map_err(to_py)?,
-            interpolated,
-        };
+        let opts =
+            FitOptions { n_h: n_h as usize, u_range, reg, solver: Solver::parse(solver).map_err(to_py)?, interpolated };
         let (u, y) = (slice("u", &u)?, slice("y", &y)?);
         let (model, rep) = py.detach(|| core_fit(u, y, &opts)).map_err(to_py)?;
         let d = PyDict::new(py);
@@ -185,7 +180,9 @@ fn rows_of<'a>(name: &str, a: &'a Option<PyReadonlyArray2<'_, f64>>) -> PyResult
         None => Ok(Vec::new()),
         Some(a) => {
             let n = a.shape()[1];
-            let s = a.as_slice().map_err(|_| PyValueError::new_err(format!("{name}: array must be C-contiguous float64")))?;
+            let s = a
+                .as_slice()
+                .map_err(|_| PyValueError::new_err(format!("{name}: array must be C-contiguous float64")))?;
             Ok(if n == 0 { Vec::new() } else { s.chunks(n).collect() })
         }
     }
@@ -195,7 +192,13 @@ fn rows_of<'a>(name: &str, a: &'a Option<PyReadonlyArray2<'_, f64>>) -> PyResult
 impl Behind {
     #[new]
     #[pyo3(signature = (u, n_h, u_range, stride=1))]
-    fn new(py: Python<'_>, u: PyReadonlyArray1<'_, f64>, n_h: i64, u_range: (f64, f64), stride: usize) -> PyResult<Self> {
+    fn new(
+        py: Python<'_>,
+        u: PyReadonlyArray1<'_, f64>,
+        n_h: i64,
+        u_range: (f64, f64),
+        stride: usize,
+    ) -> PyResult<Self> {
         guard(|| {
             if n_h < 1 {
                 return Err(to_py(preisach_core::PreisachError::invalid("n_h", format!("must be >= 1, got {n_h}"))));

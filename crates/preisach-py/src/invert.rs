@@ -57,7 +57,11 @@ impl InverseStream {
         guard(|| Ok(self.inner.step(r)))
     }
 
-    fn process<'py>(&mut self, py: Python<'py>, block: PyReadonlyArray1<'py, f64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    fn process<'py>(
+        &mut self,
+        py: Python<'py>,
+        block: PyReadonlyArray1<'py, f64>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
         guard(|| {
             let r = slice("block", &block)?;
             let mut u = vec![0.0; r.len()];
@@ -88,7 +92,16 @@ impl InverseStream {
     fn get_state<'py>(&self, py: Python<'py>) -> StateTuple<'py> {
         let s = self.inner.state();
         let (kt, kv): (Vec<u64>, Vec<f64>) = s.knots.iter().copied().unzip();
-        (s.memory.into_pyarray(py), s.saturated, s.t, s.u_prev, s.last_cm, kt.into_pyarray(py), kv.into_pyarray(py), s.r_prev)
+        (
+            s.memory.into_pyarray(py),
+            s.saturated,
+            s.t,
+            s.u_prev,
+            s.last_cm,
+            kt.into_pyarray(py),
+            kv.into_pyarray(py),
+            s.r_prev,
+        )
     }
 
     #[allow(clippy::too_many_arguments)]

@@ -4,7 +4,9 @@
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::Arc;
 
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{
+    IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
+};
 use preisach_core::model::StepMemory;
 use preisach_core::{PreisachError, PreisachModel};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
@@ -112,20 +114,21 @@ impl Model {
             let u = slice("u", &u)?;
             let state = slice("state", &state)?;
             let m = &self.inner;
-            let (y, snap) = py.detach(|| -> Result<_, PreisachError> {
-                preisach_core::error::check_finite("u", u)?;
-                let mut y = vec![0.0; u.len()];
-                if interpolated {
-                    let mut mem = m.interp_memory_from(state)?;
-                    m.run_interpolated(&mut mem, u, &mut y);
-                    Ok((y, m.interp_memory_values(&mem)))
-                } else {
-                    let mut mem = m.step_memory_from(state)?;
-                    m.run(&mut mem, u, &mut y);
-                    Ok((y, m.step_memory_values(&mem)))
-                }
-            })
-            .map_err(to_py)?;
+            let (y, snap) = py
+                .detach(|| -> Result<_, PreisachError> {
+                    preisach_core::error::check_finite("u", u)?;
+                    let mut y = vec![0.0; u.len()];
+                    if interpolated {
+                        let mut mem = m.interp_memory_from(state)?;
+                        m.run_interpolated(&mut mem, u, &mut y);
+                        Ok((y, m.interp_memory_values(&mem)))
+                    } else {
+                        let mut mem = m.step_memory_from(state)?;
+                        m.run(&mut mem, u, &mut y);
+                        Ok((y, m.step_memory_values(&mem)))
+                    }
+                })
+                .map_err(to_py)?;
             Ok((y.into_pyarray(py), snap.into_pyarray(py)))
         })
     }
@@ -155,7 +158,11 @@ impl Stream {
         Ok(self.model.step(&mut self.mem, u))
     }
 
-    fn process<'py>(&mut self, py: Python<'py>, block: PyReadonlyArray1<'py, f64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    fn process<'py>(
+        &mut self,
+        py: Python<'py>,
+        block: PyReadonlyArray1<'py, f64>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
         guard(|| {
             let u = slice("block", &block)?;
             preisach_core::error::check_finite("block", u).map_err(to_py)?;

@@ -106,8 +106,8 @@ fn compensator_for(
             format!("expected one of 'closest', 'interpolated', 'continuous', 'identity', got '{method}'"),
         )
     })?;
-    let model = model
-        .ok_or_else(|| PreisachError::invalid("model", format!("required for method '{}'", method.name())))?;
+    let model =
+        model.ok_or_else(|| PreisachError::invalid("model", format!("required for method '{}'", method.name())))?;
     let inv = Inverter::new(model.inner.clone(), method, lookahead)?;
     let preview = inv.lookahead();
     Ok((Box::new(inv), preview))

@@ -52,10 +52,7 @@ impl Amplifier {
                 finite("saturation", lo)?;
                 finite("saturation", hi)?;
                 if lo >= hi {
-                    return Err(PreisachError::invalid(
-                        "saturation",
-                        format!("lo must be below hi, got [{lo}, {hi}]"),
-                    ));
+                    return Err(PreisachError::invalid("saturation", format!("lo must be below hi, got [{lo}, {hi}]")));
                 }
                 (lo, hi)
             }

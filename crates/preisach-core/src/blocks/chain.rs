@@ -245,8 +245,7 @@ impl Chain {
     /// Parse JSON: malformed text or an unknown field/type is `Corrupt`; a bad
     /// parameter is `Invalid` naming it.
     pub fn from_json(text: &str) -> Result<Self> {
-        let spec: ChainSpec =
-            serde_json::from_str(text).map_err(|e| PreisachError::corrupt("chain", e.to_string()))?;
+        let spec: ChainSpec = serde_json::from_str(text).map_err(|e| PreisachError::corrupt("chain", e.to_string()))?;
         Chain::from_spec(spec)
     }
 

@@ -38,8 +38,7 @@ pub use hysteresis::{Hysteresis, HysteresisParams, IdentifiedHysteresis, Paramet
 pub use presets::{paper, preset, PaperOptions};
 pub use rng::Rng;
 pub use sensor::{
-    Delay, DelayParams, Lowpass, LowpassParams, Noise, NoiseParams, Quantizer, QuantizerParams, Sensor,
-    SensorParams,
+    Delay, DelayParams, Lowpass, LowpassParams, Noise, NoiseParams, Quantizer, QuantizerParams, Sensor, SensorParams,
 };
 pub use vibration::{Mode, Vibration, VibrationParams};
 
@@ -75,10 +74,7 @@ pub(crate) fn non_negative(name: &str, x: f64) -> Result<f64> {
 pub(crate) fn below_nyquist(name: &str, f: f64, fs: f64) -> Result<f64> {
     positive(name, f)?;
     if f >= 0.5 * fs {
-        return Err(PreisachError::invalid(
-            name,
-            format!("must be below Nyquist ({} Hz), got {f}", 0.5 * fs),
-        ));
+        return Err(PreisachError::invalid(name, format!("must be below Nyquist ({} Hz), got {f}", 0.5 * fs)));
     }
     Ok(f)
 }

@@ -162,9 +162,6 @@ pub fn preset(name: &str, overrides_json: &str) -> Result<Chain> {
                 .map_err(|e| PreisachError::invalid("overrides", format!("for preset 'paper': {e}")))?;
             paper(&o)
         }
-        other => Err(PreisachError::invalid(
-            "name",
-            format!("unknown preset '{other}', expected one of {PRESETS:?}"),
-        )),
+        other => Err(PreisachError::invalid("name", format!("unknown preset '{other}', expected one of {PRESETS:?}"))),
     }
 }

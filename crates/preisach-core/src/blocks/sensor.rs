@@ -389,8 +389,9 @@ impl Sensor {
         let lowpass = params.lowpass.clone().map(|p| Lowpass::new(p, fs)).transpose()?;
         let delay = Delay::new(DelayParams { delay_s: params.delay_s }, fs)?;
         let delay = if delay.samples() > 0.0 { Some(delay) } else { None };
-        let noise = Noise::new(NoiseParams { std: params.noise_std, seed: params.seed }, fs)
-            .map_err(|_| PreisachError::invalid("noise_std", format!("must be finite and >= 0, got {}", params.noise_std)))?;
+        let noise = Noise::new(NoiseParams { std: params.noise_std, seed: params.seed }, fs).map_err(|_| {
+            PreisachError::invalid("noise_std", format!("must be finite and >= 0, got {}", params.noise_std))
+        })?;
         let adc = params.adc.clone().map(|p| Quantizer::new(p, fs)).transpose()?;
         Ok(Sensor { params, lowpass, delay, noise, adc })
     }

@@ -285,9 +285,7 @@ impl Kkt {
         let pat = Pattern { colptr: &colptr, rowval: &rowval };
         // Nested dissection on the Everett grid's (a, b) positions where the couplings
         // are local, AMD where not (the offset, coupled to every value, comes last in both).
-        let xy: Vec<[u32; 2]> = (0..n)
-            .map(|v| if v + 1 < n { everett_pos(v) } else { [0, 0] })
-            .collect();
+        let xy: Vec<[u32; 2]> = (0..n).map(|v| if v + 1 < n { everett_pos(v) } else { [0, 0] }).collect();
         let (xorder, halves) = match nd_order(&pat, &xy) {
             Some(o) => o,
             None => (amd_order(&pat)?, [0, 0]),
@@ -601,8 +599,7 @@ fn solve_in(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32, scratch: &mu
             if res > 1e-7 * qmax {
                 return Ok(None);
             }
-            let masses: Vec<f64> =
-                (0..m).map(|c| if active[c] { 0.0 } else { (w[c] * pb.scale).max(0.0) }).collect();
+            let masses: Vec<f64> = (0..m).map(|c| if active[c] { 0.0 } else { (w[c] * pb.scale).max(0.0) }).collect();
             return Ok(Some(Solution { masses, offset: v[n_q] * pb.scale + pb.mu, iterations: step }));
         }
         if n_inf < best_inf {
@@ -791,14 +788,7 @@ fn residual(kkt: &Kkt, b: &[f64], v: &[f64], kv: &mut [f64], r: &mut [f64]) -> f
 /// OSQP-style ADMM on `min ½xᵀHx + qᵀx` s.t. `D x = z`, `z >= 0` (`z = 0` on the fixed
 /// cells), with `fact` holding `[H + σI, Dᵀ; D, −1/ρ]`. Returns the masses `z` after
 /// [`ADMM_ITERS`] iterations (zero where the guess is "active").
-fn admm_masses(
-    kkt: &Kkt,
-    fact: &mut Ldl,
-    q: &[f64],
-    zero: &[bool],
-    rho: f64,
-    sigma: f64,
-) -> Vec<f64> {
+fn admm_masses(kkt: &Kkt, fact: &mut Ldl, q: &[f64], zero: &[bool], rho: f64, sigma: f64) -> Vec<f64> {
     let (n, m) = (kkt.n, kkt.m);
     let mut x = vec![0.0; n];
     let mut z = vec![0.0; m];

@@ -90,7 +90,10 @@ impl Lti {
                 check_scalar("poles", v)?;
             }
             if pr >= 0.0 {
-                return Err(PreisachError::invalid("poles", format!("unstable pole {pr}{pi:+}j (real part must be < 0)")));
+                return Err(PreisachError::invalid(
+                    "poles",
+                    format!("unstable pole {pr}{pi:+}j (real part must be < 0)"),
+                ));
             }
             let p = C::new(pr, pi);
             let pt = p * dt;
@@ -551,7 +554,8 @@ impl Precond {
             .Dsigns(vec![1i8; dim])
             .build()
             .map_err(|e| PreisachError::Solver(format!("qdldl settings: {e}")))?;
-        let fact = QDLDLFactorisation::new(&mat, Some(settings)).map_err(|e| PreisachError::Solver(format!("qdldl: {e:?}")))?;
+        let fact = QDLDLFactorisation::new(&mat, Some(settings))
+            .map_err(|e| PreisachError::Solver(format!("qdldl: {e:?}")))?;
         Ok(Precond { fact, dead })
     }
 
@@ -648,7 +652,10 @@ impl Behind {
         }
         if let Some(w) = t.omega {
             if w.len() != n {
-                return Err(PreisachError::invalid("weights", format!("length {} does not match u (length {n})", w.len())));
+                return Err(PreisachError::invalid(
+                    "weights",
+                    format!("length {} does not match u (length {n})", w.len()),
+                ));
             }
             check_signal("weights", w)?;
             if let Some(i) = w.iter().position(|&v| v < 0.0) {
@@ -658,7 +665,10 @@ impl Behind {
         for (name, cols) in [("pre", t.pre), ("post", t.post)] {
             for c in cols {
                 if c.len() != n {
-                    return Err(PreisachError::invalid(name, format!("column length {} does not match u (length {n})", c.len())));
+                    return Err(PreisachError::invalid(
+                        name,
+                        format!("column length {} does not match u (length {n})", c.len()),
+                    ));
                 }
                 check_signal(name, c)?;
             }
@@ -743,11 +753,12 @@ impl Behind {
         s2.copy_from_slice(z);
         weigh(&mut s2);
         adjoint(&s2, rows, lti, &mut s1, &mut b);
-        let normal = |x: &[f64], out: &mut [f64], rows: &mut SampleRows, lti: &mut Cascade, s1: &mut [f64], s2: &mut [f64]| {
-            forward(x, rows, lti, s1, s2);
-            weigh(s2);
-            adjoint(s2, rows, lti, s1, out);
-        };
+        let normal =
+            |x: &[f64], out: &mut [f64], rows: &mut SampleRows, lti: &mut Cascade, s1: &mut [f64], s2: &mut [f64]| {
+                forward(x, rows, lti, s1, s2);
+                weigh(s2);
+                adjoint(s2, rows, lti, s1, out);
+            };
         // The cold start: the fit that ignores the dynamics and the extra terms (B x ≈ z).
         // The tolerance is relative to its residual, the part of the problem that is not
         // plain hysteresis fitting (relative to the right-hand side, the mean level of the
@@ -761,8 +772,13 @@ impl Behind {
         let mut r = vec![0.0; dim];
         let mut ap = vec![0.0; dim];
         let mut zv = vec![0.0; dim];
-        let residual = |x: &[f64], r: &mut [f64], ap: &mut [f64], rows: &mut SampleRows, lti: &mut Cascade,
-                        s1: &mut [f64], s2: &mut [f64]| {
+        let residual = |x: &[f64],
+                        r: &mut [f64],
+                        ap: &mut [f64],
+                        rows: &mut SampleRows,
+                        lti: &mut Cascade,
+                        s1: &mut [f64],
+                        s2: &mut [f64]| {
             normal(x, ap, rows, lti, s1, s2);
             for i in 0..dim {
                 r[i] = b[i] - ap[i];
@@ -842,7 +858,10 @@ impl Behind {
         self.last = Some(x.clone());
         Ok(BehindSolution {
             extra: x[nh..].to_vec(),
-            x: { x.truncate(nh); x },
+            x: {
+                x.truncate(nh);
+                x
+            },
             iterations: it,
             residual: (rz / rz0).max(0.0).sqrt(),
             rmse,

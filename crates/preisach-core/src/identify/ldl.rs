@@ -366,7 +366,8 @@ impl Ldl {
         for (wk, &i) in w.iter_mut().zip(&self.order) {
             *wk = x[i];
         }
-        let f = Factor { lp: &self.lp, lmid: &self.lmid, lend: &self.lend, li: &self.li, lx: &self.lx, dinv: &self.dinv };
+        let f =
+            Factor { lp: &self.lp, lmid: &self.lmid, lend: &self.lend, li: &self.li, lx: &self.lx, dinv: &self.dinv };
         f.solve(split, w, &mut self.acc);
         for (wk, &i) in w.iter().zip(&self.order) {
             x[i] = *wk;
@@ -594,8 +595,34 @@ impl Half<'_> {
         let (live0, live1) = self.live.split_at_mut(e);
         let (ax0, ax1) = self.ax.split_at_mut(e);
         (
-            Half { lo: self.lo, hi: at, lend: lend0, lmid: lmid0, li: li0, lx: lx0, d: d0, dinv: dinv0, etree: et0, anc: anc0, live: live0, ax: ax0 },
-            Half { lo: at, hi: self.hi, lend: lend1, lmid: lmid1, li: li1, lx: lx1, d: d1, dinv: dinv1, etree: et1, anc: anc1, live: live1, ax: ax1 },
+            Half {
+                lo: self.lo,
+                hi: at,
+                lend: lend0,
+                lmid: lmid0,
+                li: li0,
+                lx: lx0,
+                d: d0,
+                dinv: dinv0,
+                etree: et0,
+                anc: anc0,
+                live: live0,
+                ax: ax0,
+            },
+            Half {
+                lo: at,
+                hi: self.hi,
+                lend: lend1,
+                lmid: lmid1,
+                li: li1,
+                lx: lx1,
+                d: d1,
+                dinv: dinv1,
+                etree: et1,
+                anc: anc1,
+                live: live1,
+                ax: ax1,
+            },
         )
     }
 
@@ -757,7 +784,8 @@ impl Ldl {
         let mut w = vec![[0.0f64; 4]; n];
         let sep = if split[1] > 0 { n - split[1] } else { 0 };
         let mut acc = [vec![[0.0f64; 4]; sep], vec![[0.0f64; 4]; sep]];
-        let f = Factor { lp: &self.lp, lmid: &self.lmid, lend: &self.lend, li: &self.li, lx: &self.lx, dinv: &self.dinv };
+        let f =
+            Factor { lp: &self.lp, lmid: &self.lmid, lend: &self.lend, li: &self.li, lx: &self.lx, dinv: &self.dinv };
         for g in (0..k).step_by(4) {
             let kk = (k - g).min(4);
             for (t, &i) in self.order.iter().enumerate() {
@@ -1227,7 +1255,15 @@ mod tests {
         for (t, &i) in order.iter().enumerate() {
             pos[i] = t;
         }
-        let half = |i: usize| if pos[i] < h0 { 0 } else if pos[i] < h0 + h1 { 1 } else { 2 };
+        let half = |i: usize| {
+            if pos[i] < h0 {
+                0
+            } else if pos[i] < h0 + h1 {
+                1
+            } else {
+                2
+            }
+        };
         for j in 0..n {
             for &i in &rowval[colptr[j]..colptr[j + 1]] {
                 assert!(half(i) + half(j) != 1, "{i} and {j} couple the halves");

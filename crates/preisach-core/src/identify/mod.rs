@@ -190,8 +190,8 @@ fn stepwise_sse(rows: &Rows, model: &PreisachModel) -> f64 {
     let mut sse = rows.within_ss;
     for r in 0..rows.n_rows() {
         let (idx, val) = rows.row(r);
-        let p: f64 = idx.iter().zip(val).map(|(&k, &v)| v * e[k as usize]).sum::<f64>()
-            + rows.offset_coef[r] * model.offset();
+        let p: f64 =
+            idx.iter().zip(val).map(|(&k, &v)| v * e[k as usize]).sum::<f64>() + rows.offset_coef[r] * model.offset();
         let d = p - rows.target[r];
         sse += rows.weight[r] * d * d;
     }
@@ -203,10 +203,7 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
     check_signal("u", u)?;
     check_signal("y", y)?;
     if u.len() != y.len() {
-        return Err(PreisachError::invalid(
-            "y",
-            format!("length {} does not match u (length {})", y.len(), u.len()),
-        ));
+        return Err(PreisachError::invalid("y", format!("length {} does not match u (length {})", y.len(), u.len())));
     }
     check_scalar("reg", opts.reg)?;
     if opts.reg < 0.0 {
@@ -264,11 +261,8 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
     };
     let (reversals, never, once) = excitation(levels, n_h);
     // Cells never switched on: their column equals the offset's, so they are fixed to 0.
-    let top = if opts.interpolated {
-        grid.position(u_max).ceil() as usize
-    } else {
-        *levels.iter().max().unwrap() as usize
-    };
+    let top =
+        if opts.interpolated { grid.position(u_max).ceil() as usize } else { *levels.iter().max().unwrap() as usize };
     let mut zero = vec![false; grid.n_q()];
     for i in 0..n_h {
         for j in i.max(top)..n_h {

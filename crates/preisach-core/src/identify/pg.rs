@@ -97,12 +97,7 @@ impl<'a> Ops<'a> {
         let n_q = rows.n_vars();
         let n_total = rows.n_samples as f64;
         let omega: Vec<f64> = rows.weight.iter().map(|w| w / n_total).collect();
-        let yt: Vec<f64> = rows
-            .target
-            .iter()
-            .zip(&rows.offset_coef)
-            .map(|(t, o)| (t - pb.mu * o) / pb.scale)
-            .collect();
+        let yt: Vec<f64> = rows.target.iter().zip(&rows.offset_coef).map(|(t, o)| (t - pb.mu * o) / pb.scale).collect();
         let oo = omega.iter().zip(&rows.offset_coef).map(|(w, o)| w * o * o).sum();
         let mut fixed = vec![false; n_q];
         for i in 0..n_h {
@@ -729,9 +724,8 @@ mod tests {
         let mut pre = Precond::new(&d.rows, &ops.omega);
         let n_q = grid.n_q();
         let free: Vec<bool> = (0..n_q).map(|k| k % 3 != 1).collect();
-        let vec_on = |rng: &mut Lcg| -> Vec<f64> {
-            (0..n_q).map(|k| if free[k] { rng.normal() } else { 0.0 }).collect()
-        };
+        let vec_on =
+            |rng: &mut Lcg| -> Vec<f64> { (0..n_q).map(|k| if free[k] { rng.normal() } else { 0.0 }).collect() };
         for _ in 0..5 {
             let (a, b) = (vec_on(&mut rng), vec_on(&mut rng));
             let (mut pa, mut pb_) = (vec![0.0; n_q], vec![0.0; n_q]);

@@ -220,8 +220,8 @@ fn clarabel_once(p: &CscMatrix<f64>, q: &[f64], a: &CscMatrix<f64>, cones: &[Sup
         .build()
         .map_err(|e| PreisachError::Solver(format!("settings: {e:?}")))?;
     let b = vec![0.0; a.m];
-    let mut solver = DefaultSolver::new(p, q, a, &b, cones, settings)
-        .map_err(|e| PreisachError::Solver(format!("{e:?}")))?;
+    let mut solver =
+        DefaultSolver::new(p, q, a, &b, cones, settings).map_err(|e| PreisachError::Solver(format!("{e:?}")))?;
     solver.solve();
     match solver.solution.status {
         SolverStatus::Solved | SolverStatus::AlmostSolved | SolverStatus::InsufficientProgress => {}

@@ -30,9 +30,7 @@ impl Rng {
 /// A random model on (-1, 2) with some zero masses.
 pub fn random_model(rng: &mut Rng, n_h: usize) -> PreisachModel {
     let grid = Grid::new(-1.0, 2.0, n_h).unwrap();
-    let masses = (0..grid.n_q())
-        .map(|_| if rng.uniform() < 0.2 { 0.0 } else { rng.uniform() })
-        .collect();
+    let masses = (0..grid.n_q()).map(|_| if rng.uniform() < 0.2 { 0.0 } else { rng.uniform() }).collect();
     PreisachModel::new(grid, masses, rng.range(-1.0, 1.0)).unwrap()
 }
 
