@@ -56,67 +56,50 @@ fn configure(c: &mut Criterion) -> criterion::BenchmarkGroup<'_, criterion::meas
     g
 }
 
+/// A runtime of `blocks` per sample at the bench's rate.
+fn runtime(blocks: Vec<BlockSpec>) -> Runtime {
+    Chain::new(blocks).unwrap().compile(FS, Sampling::Zoh, false).unwrap()
+}
+
 fn blocks(c: &mut Criterion) {
     let u = dac_input();
     let paper = preset("paper", "{}").unwrap();
-    // Each block fed the signal it sees in the paper chain (piezo V, µm, …).
-    let mut signals = Vec::new();
-    {
-        let mut ch = paper.clone();
-        let mut x = u.clone();
-        for b in ch.blocks.iter_mut() {
-            signals.push(x.clone());
-            x = x.iter().map(|&v| b.step(v)).collect();
-        }
-    }
-    let extra: Vec<(&str, Block)> = vec![
-        ("delay_45.8", BlockSpec::Delay(DelayParams { delay_s: 4.58e-4 }).build(FS).unwrap()),
-        ("noise", BlockSpec::Noise(NoiseParams { std: 1e-3, seed: 1 }).build(FS).unwrap()),
-        (
-            "drift",
-            BlockSpec::Drift(DriftParams { gain_per_s: 1e-4, offset: 0.0, offset_per_s: 1e-4 }).build(FS).unwrap(),
-        ),
-        (
-            "hysteresis_stepwise_500",
-            BlockSpec::Hysteresis(match paper.blocks[3].spec() {
-                BlockSpec::Hysteresis(HysteresisParams::Parametric(mut p)) => {
-                    p.interpolated = false;
-                    HysteresisParams::Parametric(p)
-                }
-                _ => unreachable!(),
-            })
-            .build(FS)
-            .unwrap(),
-        ),
+    let specs = paper.blocks().to_vec();
+    // Each block fed the signal it sees in the paper chain (piezo V, µm, …): the output
+    // of the blocks before it.
+    let signal = |k: usize| -> Vec<f64> {
+        let mut pre = runtime(specs[..k].to_vec());
+        u.iter().map(|&x| pre.step(x)).collect()
+    };
+    let mut stepwise = match &specs[3] {
+        BlockSpec::Hysteresis(HysteresisParams::Parametric(p)) => p.clone(),
+        _ => unreachable!("the paper preset's fourth block is its hysteresis"),
+    };
+    stepwise.output = Output::Stepwise;
+    let extra: Vec<(&str, BlockSpec, usize)> = vec![
+        ("delay_45.8", BlockSpec::Delay(DelayParams { delay_s: 4.58e-4 }), 6),
+        ("noise", BlockSpec::Noise(NoiseParams { std: 1e-3, seed: 1 }), 6),
+        ("drift", BlockSpec::Drift(DriftParams { gain_per_s: 1e-4, offset: 0.0, offset_per_s: 1e-4 }), 6),
+        ("hysteresis_stepwise_500", BlockSpec::Hysteresis(HysteresisParams::Parametric(stepwise)), 3),
     ];
     let mut g = configure(c);
-    for (k, b) in paper.blocks.iter().enumerate() {
-        let name = format!("block/{k}_{}", b.kind());
-        let x = &signals[k];
-        let mut b = b.clone();
-        g.bench_function(name, |bch| {
-            bch.iter(|| {
-                let mut acc = 0.0;
-                for &v in x {
-                    acc += b.step(black_box(v));
-                }
-                acc
-            })
-        });
-    }
-    for (name, mut b) in extra {
-        let x = if name.starts_with("hysteresis") { &signals[3] } else { &signals[6] };
+    let named = specs.iter().enumerate().map(|(k, b)| (format!("{k}_{}", b.kind()), b.clone(), k));
+    let all: Vec<(String, BlockSpec, usize)> =
+        named.chain(extra.into_iter().map(|(n, b, k)| (n.to_string(), b, k))).collect();
+    for (name, spec, k) in all {
+        let x = signal(k);
+        let mut b = runtime(vec![spec]);
         g.bench_function(format!("block/{name}"), |bch| {
             bch.iter(|| {
                 let mut acc = 0.0;
-                for &v in x {
+                for &v in &x {
                     acc += b.step(black_box(v));
                 }
                 acc
             })
         });
     }
-    let mut ch = paper.clone();
+    let mut ch = paper.stage().unwrap();
     g.bench_function("chain/paper", |bch| {
         bch.iter(|| {
             let mut acc = 0.0;
@@ -131,7 +114,7 @@ fn blocks(c: &mut Criterion) {
 
 fn full_loop(c: &mut Criterion) {
     let r = reference();
-    let paper = preset("paper", "{}").unwrap();
+    let paper = preset("paper", "{}").unwrap().stage().unwrap();
     let mut g = configure(c);
     for &n_h in &[10usize, 100, 1000] {
         let m = model(n_h);

@@ -1,12 +1,12 @@
 """Masses fitted behind linear dynamics (``_preisach.Behind``, ``_preisach.fit_behind``):
-against dense least squares on explicitly filtered relay columns (the oracle), nested
+against dense least squares on relay columns filtered by SciPy (the oracle), nested
 chains never fitting worse, the averaged-window fit, and the diagnoser's drift
 calibration."""
 import numpy as np
 import pytest
+from lti_reference import apply_effects
 
-from preisach import PreisachModel, _preisach
-from preisach.chain import apply_effects, partial_fractions
+from preisach import Chain, PreisachModel, _preisach
 from preisach.diagnose.effects import FitState, Record
 from preisach.diagnose.search import Fitter, calibrate_slow
 
@@ -15,13 +15,12 @@ RANGE = (0.0, 1.0)
 DT = 1e-4
 
 
-def _blocks(effects):
-    out = []
-    for k in ("creep", "vibration", "lowpass"):
-        if k in effects:
-            poles, res, d = partial_fractions(k, effects[k])
-            out.append(([(p.real, p.imag) for p in poles], [(q.real, q.imag) for q in res], float(d)))
-    return out
+def _blocks(effects, delay_samples=0.0):
+    """The linear effects as the core chain the fit takes."""
+    eff = dict(effects)
+    if delay_samples:
+        eff["delay"] = {"delay_s": delay_samples * DT}
+    return Chain(None, eff)._core
 
 
 def _input(n=6000, seed=0):
@@ -48,14 +47,14 @@ def _dense(u, effects, delay_samples=0.0):
         eff = dict(effects)
         if delay_samples:
             eff["delay"] = {"delay_s": delay_samples * DT}
-        cols.append(apply_effects(eff, t, u, h, DT))
+        cols.append(apply_effects(eff, t, h))
     return np.column_stack(cols)
 
 
 @pytest.mark.parametrize("effects,delay", [
     ({"vibration": {"frequency_hz": 300.0, "damping": 0.02}}, 0.0),
     ({"vibration": {"frequency_hz": 300.0, "damping": 0.02}, "lowpass": {"cutoff_hz": 800.0, "order": 2}}, 0.0),
-    ({"creep": {"taus_s": [0.05], "amplitudes": [0.05], "_norm": True}, "lowpass": {"cutoff_hz": 500.0, "order": 1}}, 3.4),
+    ({"creep": {"taus_s": [0.05], "amplitudes": [0.05], "normalized": True}, "lowpass": {"cutoff_hz": 500.0, "order": 1}}, 3.4),
 ])
 def test_unconstrained_fit_equals_dense_least_squares_through_the_blocks(effects, delay):
     t, u = _input()
@@ -65,10 +64,10 @@ def test_unconstrained_fit_equals_dense_least_squares_through_the_blocks(effects
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
     want = np.sqrt(np.mean((A @ coef - y) ** 2))
     b = _preisach.Behind(u, N_H, RANGE)
-    res = b.solve(y, DT, _blocks(effects), tol=1e-12, max_iter=2000, delay=delay)
+    res = b.solve(y, DT, _blocks(effects, delay), tol=1e-12, max_iter=2000)
     assert res["rmse"] == pytest.approx(want, rel=1e-6)
     # A plain fit that ignores the dynamics is measurably worse: the test can fail.
-    plain = _preisach.Behind(u, N_H, RANGE).solve(y, DT, [], tol=1e-12, max_iter=2000)
+    plain = _preisach.Behind(u, N_H, RANGE).solve(y, DT, _blocks({}), tol=1e-12, max_iter=2000)
     assert np.sqrt(np.mean((A @ np.linalg.lstsq(_dense(u, {}), y, rcond=None)[0] - y) ** 2)) > 0
     assert plain["rmse"] != pytest.approx(want, rel=1e-3)
 
@@ -82,7 +81,7 @@ def test_extra_columns_and_weights_match_dense_weighted_least_squares():
     pre = np.gradient(u, DT) * 1e-3
     post = t.copy()
     A = _dense(u, eff)
-    Apre = apply_effects(eff, t, u, pre, DT)
+    Apre = apply_effects(eff, t, pre)
     M = np.column_stack([A, Apre, post]) * np.sqrt(w)[:, None]
     coef, *_ = np.linalg.lstsq(M, y * np.sqrt(w), rcond=None)
     want = np.sqrt(np.sum((M @ coef - y * np.sqrt(w)) ** 2) / np.sum(w))
@@ -98,7 +97,7 @@ def test_noise_free_chain_is_recovered_with_masses_nonnegative():
     w = np.triu(rng.uniform(0.2, 1.0, (N_H, N_H)))
     truth = PreisachModel(w, RANGE, 0.3, "interpolated")
     eff = {"vibration": {"frequency_hz": 250.0, "damping": 0.03}}
-    y = apply_effects(eff, t, u, truth.predict(u), DT)
+    y = apply_effects(eff, t, truth.predict(u))
     core, rep = _preisach.fit_behind(u, y, N_H, RANGE, DT, _blocks(eff), None, 1e-12, 2000)
     m = PreisachModel._wrap(core, "interpolated")
     assert rep["rmse"] < 1e-8
@@ -110,13 +109,13 @@ def test_bad_arguments_are_named():
     t, u = _input(n=500)
     b = _preisach.Behind(u, N_H, RANGE)
     with pytest.raises(ValueError, match="z: length"):
-        b.solve(u[:-1].copy(), DT, [])
-    with pytest.raises(ValueError, match="poles: unstable"):
-        b.solve(u, DT, [([(5.0, 0.0)], [(1.0, 0.0)], 0.0)])
-    with pytest.raises(ValueError, match="delay: must be >= 0"):
-        b.solve(u, DT, [], delay=-1.0)
+        b.solve(u[:-1].copy(), DT, _blocks({}))
+    with pytest.raises(ValueError, match=r"blocks\[0\] \(drift\): not a linear block in series"):
+        b.solve(u, DT, _blocks({"drift": {"gain_per_s": 0.1}}))
+    with pytest.raises(ValueError, match="dt: must be > 0"):
+        b.solve(u, -DT, _blocks({}))
     with pytest.raises(ValueError, match="weights: negative"):
-        b.solve(u, DT, [], weights=-np.ones(u.size))
+        b.solve(u, DT, _blocks({}), weights=-np.ones(u.size))
     with pytest.raises(ValueError, match="stride"):
         _preisach.Behind(u, N_H, RANGE, 0)
 
@@ -133,7 +132,7 @@ def drift_record():
 def test_adding_an_effect_never_fits_the_training_record_worse(drift_record):
     rec, _ = drift_record
     f = Fitter(rec, N_H, RANGE, stride=2)
-    for base in ({}, {"creep": {"taus_s": [0.2], "amplitudes": [0.02], "_norm": True}}):
+    for base in ({}, {"creep": {"taus_s": [0.2], "amplitudes": [0.02], "normalized": True}}):
         j0 = f.J(base)
         # Nested: a drift with no gain adds an offset slope, which can only help (this
         # failed while the iteration stopped on a residual relative to the start).
@@ -157,7 +156,7 @@ def test_slow_calibration_recovers_drift_and_creep_across_records(cal_rate, monk
     monkeypatch.setattr(search, "CAL_RATE_HZ", cal_rate)
     w = np.triu(np.random.default_rng(9).uniform(0.2, 1.0, (N_H, N_H)))
     model = PreisachModel(w, RANGE, 0.1, "interpolated")
-    truth = {"creep": {"taus_s": [0.3], "amplitudes": [0.05], "_norm": True},
+    truth = {"creep": {"taus_s": [0.3], "amplitudes": [0.05], "normalized": True},
              "drift": {"gain_per_s": 0.02, "offset": 0.0, "offset_per_s": -0.03}}
     recs = []
     t0 = 0.0
@@ -167,7 +166,7 @@ def test_slow_calibration_recovers_drift_and_creep_across_records(cal_rate, monk
         t0 = t[-1] + DT
         y = FitState(model, truth).predict(Record("r", t, u, np.zeros_like(t), DT))
         recs.append(Record("r", t, u, y, DT))
-    st = FitState(model, {"creep": {"taus_s": [0.05], "amplitudes": [0.01], "_norm": True},
+    st = FitState(model, {"creep": {"taus_s": [0.05], "amplitudes": [0.01], "normalized": True},
                           "drift": {"gain_per_s": 0.0, "offset": 0.0, "offset_per_s": 0.0}})
     cal = calibrate_slow(st, [(r, slice(None)) for r in recs])
     assert cal.effects["drift"]["gain_per_s"] == pytest.approx(0.02, rel=1e-3)

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import smooth_weights, sweep_input
+from lti_reference import apply_effects
 
 from preisach import PreisachModel
 from preisach.cli import main
@@ -82,7 +83,7 @@ def test_bad_data_is_one_line_with_exit_code_1(tmp_path, capsys):
     corrupt = tmp_path / "m.json"
     corrupt.write_text(json.dumps({"format": "preisach-model", "version": 1, "n_h": 2, "weights": [[1.0]]}))
     assert main(["predict", str(corrupt), str(bad), "-o", str(tmp_path / "o.csv")]) == 1
-    assert "corrupt model file" in capsys.readouterr().err
+    assert "m.json: corrupt model: 'weights' must be a list of 2 rows" in capsys.readouterr().err
     assert not (tmp_path / "o.csv").exists()
 
 
@@ -93,3 +94,118 @@ def test_console_script_and_module_entry_points_show_help_with_an_example():
             r = subprocess.run(cmd + [sub, "--help"], capture_output=True, text=True, timeout=60)
             assert r.returncode == 0, r.stderr
             assert "example:" in r.stdout
+
+
+# --------------------------------------------------------------------------- any model, chain or stage
+def _files(tmp_path, truth):
+    """The same model as a version-1 file, a version-2 file, a chain with effects and a
+    stage with noise."""
+    from preisach import Chain
+    from preisach.sim import Stage
+
+    v1 = tmp_path / "v1.json"
+    w = truth.weights
+    v1.write_text(json.dumps({"format": "preisach-model", "version": 1, "n_h": truth.n_h,
+                              "u_range": list(truth.u_range), "offset": truth.offset, "output": truth.output,
+                              "weights": [w[i, i:].tolist() for i in range(truth.n_h)]}))
+    v2 = tmp_path / "v2.json"
+    truth.save(v2)
+    chain = tmp_path / "chain.json"
+    Chain(truth, {"delay": {"delay_s": 5e-4}, "lowpass": {"cutoff_hz": 300.0}}).save(chain)
+    stage = tmp_path / "stage.json"
+    Stage(Chain(truth).blocks + [{"type": "noise", "std": 0.01, "seed": 3}], sample_rate_hz=1e3).save(stage)
+    return v1, v2, chain, stage
+
+
+def test_predict_and_simulate_take_any_model_chain_or_stage(tmp_path, record):
+    p, truth = record
+    v1, v2, chain, stage = _files(tmp_path, truth)
+    rec = np.loadtxt(p, delimiter=",", skiprows=1)
+    out = {}
+    for f in (v1, v2, chain, stage):
+        for cmd in ("predict", "simulate"):
+            o = tmp_path / f"{f.stem}_{cmd}.csv"
+            assert main([cmd, str(f), str(p), "-o", str(o)]) == 0
+            data = np.loadtxt(o, delimiter=",", skiprows=1)
+            np.testing.assert_array_equal(data[:, 0], rec[:, 0])  # the input's own time
+            out[f.stem, cmd] = data[:, -1]
+    y = truth.predict(rec[:, 1])
+    for f in ("v1", "v2"):
+        np.testing.assert_allclose(out[f, "predict"], y, atol=1e-12)
+        np.testing.assert_allclose(out[f, "simulate"], y, atol=1e-12)
+    # predict is deterministic (the stage's noise off); simulate adds it.
+    np.testing.assert_allclose(out["stage", "predict"], y, atol=1e-12)
+    assert 0.005 < np.std(out["stage", "simulate"] - y) < 0.015
+    # The chain's effects at the record's own rate (the SciPy reference).
+    want = apply_effects({"lowpass": {"cutoff_hz": 300.0}, "delay": {"delay_s": 5e-4}}, rec[:, 0], y)
+    np.testing.assert_allclose(out["chain", "predict"], want, atol=1e-9)
+
+
+def test_simulate_runs_at_the_input_rate_and_names_a_bad_time_row(tmp_path, capsys):
+    from preisach.sim import Stage
+
+    stage = tmp_path / "stage.json"
+    Stage([{"type": "vibration", "modes": [{"frequency_hz": 780.0, "damping": 0.05}]}]).save(stage)
+    for fs in (10e3, 100e3):
+        t = np.arange(int(0.01 * fs)) / fs
+        _write(tmp_path / "in.csv", t=t, u=(t >= 0.005).astype(float))
+        assert main(["simulate", str(stage), str(tmp_path / "in.csv"), "-o", str(tmp_path / "o.csv")]) == 0
+        assert f"at the input's {fs:g} Hz" in capsys.readouterr().out
+        y = np.loadtxt(tmp_path / "o.csv", delimiter=",", skiprows=1)[:, 2]
+        # First peak of the ringing half a period (of the damped mode) after the step.
+        k = int(np.argmax(y))
+        assert abs(t[k] - 0.005 - 0.5 / (780.0 * np.sqrt(1 - 0.05 ** 2))) <= 1.5 / fs
+    t[40] = t[39]
+    _write(tmp_path / "bad.csv", t=t, u=np.ones(t.size))
+    assert main(["simulate", str(stage), str(tmp_path / "bad.csv"), "-o", str(tmp_path / "o.csv")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "t: time must increase strictly (row 40" in err
+
+
+def test_invert_takes_a_model_of_either_version_and_refuses_a_chain(tmp_path, record, capsys):
+    p, truth = record
+    v1, v2, chain, _ = _files(tmp_path, truth)
+    rec = np.loadtxt(p, delimiter=",", skiprows=1)
+    _write(tmp_path / "ref.csv", t=rec[:, 0], r=rec[:, 2])
+    got = []
+    for f in (v1, v2):
+        assert main(["invert", str(f), str(tmp_path / "ref.csv"), "-o", str(tmp_path / "u.csv")]) == 0
+        got.append(np.loadtxt(tmp_path / "u.csv", delimiter=",", skiprows=1)[:, 1])
+    np.testing.assert_array_equal(got[0], got[1])
+    capsys.readouterr()
+    assert main(["invert", str(chain), str(tmp_path / "ref.csv"), "-o", str(tmp_path / "u.csv")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "not a single identified model" in err
+
+
+@pytest.mark.parametrize("block,msg", [
+    ({"type": "warp"}, "blocks[1] (warp): unknown block type 'warp'"),
+    ({"type": "lowpass"}, "blocks[1] (lowpass): missing field `cutoff_hz`"),
+    ({"type": "lowpass", "cutoff_hz": float("nan")}, "blocks[1] (lowpass): cutoff_hz: must be finite, got nan"),
+    ({"type": "creep", "taus_s": [-0.1], "amplitudes": [0.01]}, "blocks[1] (creep): taus_s[0]: must be > 0, got -0.1"),
+    ({"type": "vibration", "modes": [{"frequency_hz": 700.0, "damping": 0}]},
+     "blocks[1] (vibration): modes[0].damping: must be > 0, got 0"),
+    ({"type": "lowpass", "cutoff_hz": 6000.0}, "blocks[1] (lowpass): cutoff_hz: must be below Nyquist (5000 Hz)"),
+])
+def test_bad_chain_files_are_one_line_errors_naming_block_and_field(tmp_path, record, capsys, block, msg):
+    from preisach import Chain
+
+    p, truth = record
+    d = Chain(truth).to_dict()
+    d["blocks"].append(block)
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(d))
+    assert main(["simulate", str(bad), str(p), "-o", str(tmp_path / "o.csv")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and msg in err, err
+    assert not (tmp_path / "o.csv").exists()
+
+
+def test_a_rate_without_hysteresis_before_it_is_refused(tmp_path, record, capsys):
+    p, _ = record
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"format": "preisach-chain", "version": 2,
+                               "blocks": [{"type": "rate", "gain_s": 1e-3, "tau_s": 1e-3}]}))
+    assert main(["predict", str(bad), str(p), "-o", str(tmp_path / "o.csv")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "blocks[0] (rate): needs a hysteresis block before it" in err

@@ -1,24 +1,63 @@
 """diagnose: bad input, report format, CLI, and a small blind validation whose ground
-truth is simulated independently (benches/blind_validation.py, SciPy filters)."""
+truth is simulated independently (``independent_stage``: SciPy filters)."""
 import argparse
 import json
-import sys
-from pathlib import Path
 
+import independent_stage as bv
 import numpy as np
 import pytest
+from lti_reference import tf_lowpass, tf_mode
+from scipy import signal
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benches"))
-import blind_validation as bv  # noqa: E402
-
-from preisach.chain import Chain  # noqa: E402
-from preisach.diagnose import diagnose, run_cli  # noqa: E402
+from preisach.chain import Chain
+from preisach.cli import main
+from preisach.diagnose import diagnose, run_cli
+from preisach.sim import run_loop
 
 DYNAMIC = {"delay", "lowpass", "vibration", "creep", "drift", "rate"}
 
 
 def _rec(r):
     return {k: r[k] for k in "tuy"}
+
+
+def _l1(effects):
+    """``∫|h|`` of the chain's linear blocks in series (a bound of their product's: the L1
+    norm is submultiplicative), from SciPy impulse responses; creep's kernel is positive
+    (``1 + Σc``), a delay's is 1."""
+    g = 1.0 + sum(effects.get("creep", {}).get("amplitudes", []))
+    for name in ("vibration", "lowpass"):
+        if name in effects:
+            p = effects[name]
+            if name == "vibration":
+                tf, span = tf_mode(p["frequency_hz"], p["damping"]), 12 / (p["damping"] * 2 * np.pi * p["frequency_hz"])
+            else:
+                tf, span = tf_lowpass(p["cutoff_hz"], p["order"]), 50 / (2 * np.pi * p["cutoff_hz"])
+            t, h = signal.impulse(signal.lti(*tf), T=np.linspace(0.0, span, 400_001))
+            g *= float(np.trapezoid(np.abs(h), t))
+    return g
+
+
+def _runs_agree(ch, rec):
+    """The saved chain run three ways on a record at its own rate: ``simulate`` (per sample,
+    the input held) and ``run_loop`` (per sample at the chain's own rate, which is the
+    record's; its clock starts at 0) agree to rounding; ``predict`` (the input linear
+    between samples) differs from ``simulate`` by the hold alone, at most ``∫|h|`` of the
+    linear blocks times the largest change over a sample of the signal entering them (the
+    hysteresis output, plus the rate branch, bounded by ``2|gain_s|/tau_s · max|Δu|``),
+    times the drift's gain."""
+    t, u = rec["t"], rec["u"]
+    assert ch.sample_rate_hz == pytest.approx(1.0 / (t[1] - t[0]))
+    y_sim = ch.simulate(t, u)
+    np.testing.assert_allclose(run_loop(None, ch, u, method="identity").y, ch.simulate(t - t[0], u), atol=1e-12)
+    eff = ch.effects
+    dv = np.max(np.abs(np.diff(ch.model.predict(u))))
+    if "rate" in eff:
+        dv += 2 * abs(eff["rate"]["gain_s"]) / eff["rate"]["tau_s"] * np.max(np.abs(np.diff(u)))
+    drift = 1 + abs(eff.get("drift", {}).get("gain_per_s", 0.0)) * np.max(np.abs(t))
+    bound = _l1(eff) * dv * drift
+    assert np.max(np.abs(ch.predict(t, u) - y_sim)) <= bound + 1e-12
+    return y_sim
 
 
 def _blind_errors(rep, st):
@@ -94,6 +133,43 @@ def test_delay_found_with_parameters_and_cli_outputs(delay_stage, tmp_path):
     e_aug = np.sqrt(np.mean((ch.predict(b["t"], b["u"]) - b["y"]) ** 2))
     e_base = np.sqrt(np.mean((base.predict(b["u"]) - b["y"]) ** 2))
     assert e_aug < 0.5 * e_base
+    # The saved chain from the command line: predict and simulate write what the chain
+    # gives, and the runs agree (see _runs_agree).
+    y_sim = _runs_agree(ch, b)
+    write_csv(tmp_path / "blind.csv", {k: b[k] for k in "tuy"})
+    aug = str(tmp_path / "aug.json")
+    assert main(["predict", aug, str(tmp_path / "blind.csv"), "-o", str(tmp_path / "p.csv")]) == 0
+    assert main(["simulate", aug, str(tmp_path / "blind.csv"), "-o", str(tmp_path / "s.csv")]) == 0
+    pred = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1)
+    sim = np.loadtxt(tmp_path / "s.csv", delimiter=",", skiprows=1)
+    np.testing.assert_array_equal(pred[:, 0], b["t"])
+    np.testing.assert_allclose(pred[:, 1], ch.predict(b["t"], b["u"]), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(sim[:, 2], y_sim, rtol=0, atol=1e-15)
+
+
+def test_a_stage_baseline_is_the_before_and_a_model_file_is_refitted(delay_stage, tmp_path):
+    """A simulated stage cannot be refitted: it is scored as the before (here the true
+    stage less its noise, at the noise floor), and the search starts from a fitted model.
+    A model file is the baseline's model, refitted with the candidates."""
+    from preisach import Chain as C
+    from preisach import PreisachModel
+
+    st = delay_stage
+    truth = bv.true_hysteresis(np.random.default_rng(11))
+    stage = C.from_blocks(C(truth).blocks + [{"type": "delay", "delay_s": st["params"]["delay"]["delay_s"]},
+                                             {"type": "noise", "std": 0.003, "seed": 1}])
+    stage.save(tmp_path / "stage.json")
+    rep = diagnose(_rec(st["train"]), [_rec(h) for h in st["holdouts"]], baseline=tmp_path / "stage.json",
+                   progress=False)
+    assert rep.baseline["given"] == {"blocks": ["hysteresis", "delay", "noise"], "refitted": False}
+    assert rep.baseline["holdout_rmse"] < 0.0036  # the stage's own error: the noise (0.003)
+    assert rep.baseline_model.n_h == 40
+    m = PreisachModel.fit(st["train"]["u"], st["train"]["y"], 24)
+    m.save(tmp_path / "m.json")
+    rep = diagnose(_rec(st["train"]), [_rec(h) for h in st["holdouts"]], baseline=str(tmp_path / "m.json"),
+                   progress=False, candidates=("delay",))
+    assert rep.baseline["given"] == {"blocks": ["hysteresis"], "refitted": True}
+    assert rep.baseline["n_h"] == 24 and rep.dominant_effect == "delay"
 
 
 @pytest.mark.parametrize("names,seed", [
@@ -123,6 +199,7 @@ def test_small_blind_validation(names, seed):
     e_aug, e_base = _blind_errors(rep, st)
     # The goal: realised shrink >= 70 % on the unseen record.
     assert e_aug < 0.3 * e_base
+    _runs_agree(rep.chain, st["blind"])
 
 
 def test_parabolic_search_finds_smooth_and_kinked_minima_in_few_evaluations():
@@ -210,8 +287,6 @@ def test_mode_guess_returns_the_k_largest_peaks():
 def test_creep_amplitude_search_finds_a_small_amplitude():
     """The amplitude search starts from no creep (its error known) and must find an
     amplitude below its first trial point (a 1 % creep: the trial at 3 % overshoots)."""
-    from preisach import PreisachModel
-    from preisach.chain import Chain
     from preisach.diagnose.effects import Record
     from preisach.diagnose.search import Fitter
 
@@ -226,7 +301,7 @@ def test_creep_amplitude_search_finds_a_small_amplitude():
     c, j = f.creep_amp({}, tau, c0=0.06)  # trial points 0.02 and 0.06: both too large
     # Oracle: the profiled error on a fine grid of amplitudes.
     grid = np.linspace(0.0, 0.04, 81)
-    js = [f.J({"creep": {"taus_s": [tau], "amplitudes": [float(g)], "_norm": True}}) for g in grid]
+    js = [f.J({"creep": {"taus_s": [tau], "amplitudes": [float(g)], "normalized": True}}) for g in grid]
     best = float(grid[int(np.argmin(js))])
     assert 0.0 < best < 0.02 and abs(c - best) <= 0.0015
     assert j <= min(js) + 1e-3 * (f.J({}) - min(js))

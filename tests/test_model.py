@@ -134,18 +134,42 @@ def test_save_load_round_trip(tmp_path, rng):
     assert not list(tmp_path.glob("*.tmp"))
 
 
+def _v1(m):
+    """The version-1 model file of ``m`` (as the build that wrote version 1 did)."""
+    w = m.weights
+    return {"format": "preisach-model", "version": 1, "n_h": m.n_h, "u_range": list(m.u_range),
+            "offset": m.offset, "output": m.output, "weights": [w[i, i:].tolist() for i in range(m.n_h)]}
+
+
+def test_save_writes_a_version_2_chain_of_one_block_and_version_1_files_still_load(tmp_path, rng):
+    m = PreisachModel(random_weights(rng, 5), (-1, 4), offset=0.5, output="interpolated")
+    d = m.to_dict()
+    assert d["format"] == "preisach-chain" and d["version"] == 2 and len(d["blocks"]) == 1
+    b = d["blocks"][0]
+    assert (b["type"], b["source"], b["output"], b["n_h"], b["u_range"]) == \
+        ("hysteresis", "identified", "interpolated", 5, [-1.0, 4.0])
+    # Square, zeros below the diagonal (what MATLAB's jsondecode gives as a matrix).
+    np.testing.assert_array_equal(np.array(b["weights"]), m.weights)
+    p = tmp_path / "v1.json"
+    p.write_text(json.dumps(_v1(m)))
+    back = PreisachModel.load(p)
+    np.testing.assert_array_equal(back.weights, m.weights)
+    assert back.output == "interpolated" and back.offset == 0.5
+    assert back.to_dict() == d
+
+
 @pytest.mark.parametrize("mutate, msg", [
     (lambda d: d.update(format="other"), "format"),
     (lambda d: d.update(version=99), "version"),
     (lambda d: d.update(n_h=0), "n_h"),
     (lambda d: d["weights"].pop(), "weights"),
-    (lambda d: d["weights"][0].__setitem__(0, -1.0), "negative"),
+    (lambda d: d["weights"][0].__setitem__(0, -1.0), "must be >= 0"),
     (lambda d: d.update(u_range=[3, 1]), "u_range"),
     (lambda d: d["weights"][1].__setitem__(0, "x"), "non-numbers"),
+    (lambda d: d.update(output="smooth"), "output"),
 ])
-def test_corrupt_model_files_are_rejected(tmp_path, rng, mutate, msg):
-    m = PreisachModel(random_weights(rng, 4), (0, 1))
-    d = m.to_dict()
+def test_corrupt_version_1_model_files_are_rejected(tmp_path, rng, mutate, msg):
+    d = _v1(PreisachModel(random_weights(rng, 4), (0, 1)))
     mutate(d)
     p = tmp_path / "bad.json"
     p.write_text(json.dumps(d))
@@ -153,10 +177,41 @@ def test_corrupt_model_files_are_rejected(tmp_path, rng, mutate, msg):
         PreisachModel.load(p)
 
 
+@pytest.mark.parametrize("mutate, msg", [
+    (lambda b: b["weights"].pop(), "blocks\\[0\\] \\(hysteresis\\): weights: expected a square matrix"),
+    (lambda b: b["weights"][2].__setitem__(1, 0.5), r"weights\[2\]\[1\]: must be 0 below the diagonal"),
+    (lambda b: b["weights"][0].__setitem__(3, -1.0), r"weights\[0\]\[3\]: must be >= 0"),
+    (lambda b: b["weights"][1].__setitem__(2, float("nan")), r"weights\[1\]\[2\]: must be finite, got nan"),
+    (lambda b: b.update(output="smooth"), "unknown variant `smooth`"),
+    (lambda b: b.update(colour="red"), "unknown field `colour`"),
+    (lambda b: b.pop("n_h"), "missing field `n_h`"),
+])
+def test_corrupt_version_2_model_files_are_rejected_naming_the_field(tmp_path, rng, mutate, msg):
+    d = PreisachModel(random_weights(rng, 4), (0, 1)).to_dict()
+    mutate(d["blocks"][0])
+    p = tmp_path / "bad.json"
+    p.write_text(json.dumps(d))
+    with pytest.raises(ValueError, match=msg):
+        PreisachModel.load(p)
+
+
+def test_a_chain_is_not_a_model(tmp_path, rng):
+    from preisach import Chain, load
+
+    m = PreisachModel(random_weights(rng, 4), (0, 1))
+    p = tmp_path / "c.json"
+    Chain(m, {"delay": {"delay_s": 1e-3}}).save(p)
+    with pytest.raises(ValueError, match="not a single identified model: use preisach.load"):
+        PreisachModel.load(p)
+    assert isinstance(load(p), Chain)
+    m.save(p)
+    assert isinstance(load(p), PreisachModel)
+
+
 def test_truncated_json_is_rejected(tmp_path):
     p = tmp_path / "bad.json"
     p.write_text('{"format": "preisach-model", "vers')
-    with pytest.raises(ValueError, match="corrupt model file"):
+    with pytest.raises(ValueError, match="bad.json: corrupt chain: not JSON"):
         PreisachModel.load(p)
 
 

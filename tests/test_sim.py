@@ -100,7 +100,7 @@ def test_paper_preset_units_and_blocks() -> None:
 def test_json_round_trip_and_replay() -> None:
     st = Stage.preset("paper", seed=4, delay=True)
     d = json.loads(st.to_json())
-    assert d["version"] == 1 and d["sample_rate_hz"] == FS
+    assert d["format"] == "preisach-chain" and d["version"] == 2 and d["sample_rate_hz"] == FS
     hyst = d["blocks"][3]
     assert hyst["type"] == "hysteresis" and hyst["source"] == "parametric" and hyst["n_h"] == 500
     assert "weights" not in hyst
@@ -127,8 +127,10 @@ def test_step_equals_run() -> None:
 # ---------------------------------------------------------------- validation
 
 @pytest.mark.parametrize("block, name", [
-    ({"type": "creep", "gains": [0.1], "time_constants_s": [-1.0]}, "time_constants_s[0]"),
+    ({"type": "creep", "gains": [0.1], "time_constants_s": [-1.0]}, "taus_s[0]"),
+    ({"type": "creep", "amplitudes": [0.1], "taus_s": [-1.0]}, "taus_s[0]"),
     ({"type": "vibration", "modes": [{"freq_hz": 780, "damping": 0.0}]}, "modes[0].damping"),
+    ({"type": "vibration", "modes": [{"frequency_hz": 780, "damping": 0.0}]}, "modes[0].damping"),
     ({"type": "lowpass", "cutoff_hz": 60_000}, "cutoff_hz"),
     ({"type": "delay", "delay_s": -1e-3}, "delay_s"),
     ({"type": "sensor", "noise_std": -1.0}, "noise_std"),
@@ -138,17 +140,17 @@ def test_bad_parameters_raise_naming_them(block: dict, name: str) -> None:
     with pytest.raises(ValueError) as info:
         Stage([block])
     msg = str(info.value)
-    assert msg.startswith(f"{name}: ") and "blocks[0]" in msg, msg
+    assert msg.startswith(f"blocks[0] ({block['type']}): {name}: "), msg
 
 
 def test_other_bad_input() -> None:
-    with pytest.raises(ValueError, match="cutoff_hz: must be below Nyquist"):
+    with pytest.raises(ValueError, match=r"^blocks\[0\] \(lowpass\): cutoff_hz: must be below Nyquist"):
         Stage([{"type": "lowpass", "cutoff_hz": 600}], sample_rate_hz=1000)
-    with pytest.raises(ValueError, match=r"^cutoff_hz: must be finite, got nan \(blocks\[0\], lowpass\)"):
+    with pytest.raises(ValueError, match=r"^blocks\[0\] \(lowpass\): cutoff_hz: must be finite, got nan"):
         Stage([{"type": "lowpass", "cutoff_hz": float("nan")}])
-    with pytest.raises(ValueError, match=r"^modes\[0\].damping: must be finite, got inf"):
+    with pytest.raises(ValueError, match=r"^blocks\[0\] \(vibration\): modes\[0\].damping: must be finite, got inf"):
         Stage([{"type": "vibration", "modes": [{"freq_hz": 780.0, "damping": np.inf}]}])
-    with pytest.raises(ValueError, match=r"^damping: must be finite"):
+    with pytest.raises(ValueError, match=r"^preset 'paper': damping: must be finite"):
         Stage.preset("paper", damping=float("nan"))
     with pytest.raises(ValueError, match="sample_rate_hz"):
         Stage([], sample_rate_hz=-1)
@@ -159,6 +161,8 @@ def test_other_bad_input() -> None:
     with pytest.raises(ValueError, match="^corrupt chain"):
         Stage([{"type": "warp"}])
     with pytest.raises(ValueError, match="^corrupt chain: unsupported version"):
+        Stage.from_json('{"format": "preisach-chain", "version": 3, "blocks": []}')
+    with pytest.raises(ValueError, match="^corrupt chain: missing 'format'"):
         Stage.from_json('{"version": 2, "sample_rate_hz": 1000, "blocks": []}')
     with pytest.raises(ValueError, match="overrides"):
         Stage.preset("paper", dampign=0.1)

@@ -1,5 +1,5 @@
 """Type stubs of the compiled module `preisach._preisach` (checked by mypy.stubtest)."""
-from typing import Any, Optional, Sequence
+from typing import Any, Optional
 
 from typing_extensions import final
 
@@ -7,7 +7,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 __version__: str
-__all__ = ["__version__", "Model", "Stream", "fit", "fit_behind", "lti", "Behind", "regression_rows", "invert", "InverseStream", "Chain", "run_loop"]
+__all__ = ["__version__", "Model", "Stream", "fit", "fit_behind", "Behind", "regression_rows", "invert", "InverseStream", "Chain", "run_loop", "sample_period"]
 
 # --- core (model, stream, identification) ---
 @final
@@ -50,18 +50,11 @@ def fit_behind(
     n_h: int,
     u_range: tuple[float, float],
     dt: float,
-    blocks: list[tuple[list[tuple[float, float]], list[tuple[float, float]], float]],
+    chain: Chain,
     weights: Optional[NDArray[np.float64]] = None,
     tol: float = 1e-6,
     max_iter: int = 200,
 ) -> tuple[Model, dict[str, Any]]: ...
-def lti(
-    x: NDArray[np.float64],
-    dt: float,
-    poles: Sequence[tuple[float, float]],
-    residues: Sequence[tuple[float, float]],
-    direct: float = 0.0,
-) -> NDArray[np.float64]: ...
 
 @final
 class Behind:
@@ -72,7 +65,7 @@ class Behind:
         self,
         z: NDArray[np.float64],
         dt: float,
-        blocks: list[tuple[list[tuple[float, float]], list[tuple[float, float]], float]],
+        chain: Chain,
         weights: Optional[NDArray[np.float64]] = None,
         pre: Optional[NDArray[np.float64]] = None,
         post: Optional[NDArray[np.float64]] = None,
@@ -80,7 +73,6 @@ class Behind:
         max_iter: int = 300,
         warm: bool = True,
         nnls: bool = False,
-        delay: float = 0.0,
     ) -> dict[str, Any]: ...
 
 def regression_rows(
@@ -123,27 +115,51 @@ class InverseStream:
         r_prev: float,
     ) -> None: ...
 
-# --- simulator ---
+# --- chains and the simulator ---
 @final
 class Chain:
     @staticmethod
     def from_json(text: str) -> Chain: ...
     @staticmethod
     def preset(name: str, overrides_json: str) -> Chain: ...
+    @staticmethod
+    def from_blocks(
+        blocks_json: str, sample_rate_hz: Optional[float] = None, initial_input: Optional[float] = None
+    ) -> Chain: ...
+    @staticmethod
+    def from_effects(
+        model: Optional[Model], output: str, effects_json: str, report_json: Optional[str] = None
+    ) -> Chain: ...
     def to_json(self) -> str: ...
     @property
-    def sample_rate_hz(self) -> float: ...
+    def sample_rate_hz(self) -> Optional[float]: ...
+    @sample_rate_hz.setter
+    def sample_rate_hz(self, fs: Optional[float]) -> None: ...
+    @property
+    def initial_input(self) -> Optional[float]: ...
+    @initial_input.setter
+    def initial_input(self, x: Optional[float]) -> None: ...
     @property
     def time_s(self) -> float: ...
     @time_s.setter
     def time_s(self, t: float) -> None: ...
     def kinds(self) -> list[str]: ...
+    def identified_model(self, k: int) -> Optional[tuple[Model, str]]: ...
+    def check_stage(self) -> None: ...
     def step(self, u: float) -> float: ...
     def run(self, u: NDArray[np.float64]) -> NDArray[np.float64]: ...
     def reset(self) -> None: ...
     def reset_state(self) -> None: ...
     def copy(self) -> Chain: ...
+    def predict(
+        self, t: NDArray[np.float64], u: NDArray[np.float64], initial_input: Optional[float] = None
+    ) -> NDArray[np.float64]: ...
+    def simulate(
+        self, t: NDArray[np.float64], u: NDArray[np.float64], initial_input: Optional[float] = None
+    ) -> NDArray[np.float64]: ...
+    def response(self, f_hz: NDArray[np.float64]) -> NDArray[np.complex128]: ...
 
+def sample_period(t: NDArray[np.float64]) -> float: ...
 def run_loop(
     model: Model | None,
     chain: Chain,

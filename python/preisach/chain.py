@@ -1,37 +1,45 @@
-"""A model chain: the identified Preisach model followed by plant effects (DESIGN.md,
-"Blocks"), as written by ``preisach diagnose --save-model`` and run by ``preisach
-predict``.
+"""Chains of blocks (DESIGN.md, "Blocks"): the simulated stage, an identified model, a
+model plus effects (what ``preisach diagnose --save-model`` writes) are one object,
+:class:`Chain`, run by the Rust core (``preisach._preisach.Chain``); see
+``docs/method/blocks.md`` for the block vocabulary and the JSON format.
 
-JSON form::
+JSON form (version 2)::
 
-    {"format": "preisach-chain", "version": 1,
-     "model": <PreisachModel.to_dict()>,
-     "effects": [{"name": "delay", "params": {"delay_s": 3e-4}}, ...]}
+    {"format": "preisach-chain", "version": 2,
+     "sample_rate_hz": 100000.0,          (optional: the stage's own rate)
+     "initial_input": 0.0,                (optional: the input at rest before a record)
+     "blocks": [{"type": "hysteresis", "source": "identified", ...},
+                {"type": "delay", "delay_s": 3e-4}, ...],
+     "report": {...}}                     (optional: a fit report, passed through)
 
-Effect parameters are in physical units (seconds, hertz), so a chain runs at any
-sample rate. The effects are applied in the fixed DESIGN order whatever their order
-in the list: hysteresis -> rate branch -> creep -> vibration -> low-pass -> delay ->
-drift. Linear blocks are simulated exactly for an input that is linear between
-samples (first-order hold), so the result does not depend on the sample rate beyond
-that interpolation; numpy only.
+Blocks run in list order; parameters are in physical units, so a chain runs at any
+sample rate: :meth:`Chain.predict` (deterministic, the linear blocks by the first-order
+hold) and :meth:`Chain.simulate` (per sample, with noise and quantization) take the rate
+from the record's time column. Files of version 1 (a ``preisach-model``, a
+``preisach-chain`` of a model and effects, a stage) load too; files are written as
+version 2.
 """
 from __future__ import annotations
 
 import json
 import math
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, Mapping, Optional, TypeVar, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from preisach import _preisach
+from preisach._validate import as_signal
 from preisach.io import PathLike, write_text
 from preisach.model import PreisachModel
 
 FORMAT = "preisach-chain"
-VERSION = 1
+VERSION = 2
+_C = TypeVar("_C", bound="Chain")
 
-#: Effect names in the order they are applied, with their pinned parameter names.
+#: Effects of :class:`Chain` (model, effects), in the order they are applied, with their
+#: pinned parameter names.
 EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
     "rate": ("gain_s", "tau_s"),
     "creep": ("taus_s", "amplitudes"),
@@ -43,242 +51,316 @@ EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
 ORDER = tuple(EFFECT_PARAMS)
 
 
-# --------------------------------------------------------------------------------------
-# Exact simulation of linear blocks given as partial fractions.
-# --------------------------------------------------------------------------------------
-def lti(x: ArrayLike, dt: float, poles: Sequence[complex], residues: Sequence[complex],
-        direct: float = 0.0) -> NDArray[np.float64]:
-    """Output of ``H(s) = direct + sum r_k / (s - p_k)`` for input ``x`` sampled every
-    ``dt`` seconds, starting at rest. Poles must be stable; a complex pole stands for
-    itself and its conjugate (pass one of each pair)."""
-    from preisach import _preisach
-
-    xx = np.ascontiguousarray(x, dtype=np.float64)
-    ps = [(complex(p).real, complex(p).imag) for p in poles]
-    rs = [(complex(r).real, complex(r).imag) for r in residues]
-    return _preisach.lti(xx, float(dt), ps, rs, float(direct))
+def sample_period(t: ArrayLike, what: str = "t") -> float:
+    """The sample period of a time column (seconds): ``t`` must increase strictly and
+    be regular (within a quarter period of the line through its ends; the rounding of a
+    stored time axis passes, a missing sample does not). Errors name ``what`` and the
+    row."""
+    tt = np.ascontiguousarray(t, dtype=np.float64).ravel()
+    try:
+        return float(_preisach.sample_period(tt))
+    except ValueError as exc:
+        msg = str(exc)
+        raise ValueError(f"{what}{msg[1:]}" if msg.startswith("t:") else msg) from None
 
 
-def butterworth_pf(cutoff_hz: float, order: int) -> tuple[list[complex], list[complex]]:
-    """Partial fractions of the analog Butterworth low-pass (DC gain 1): one pole of
-    each conjugate pair, with its residue."""
-    wc = 2 * math.pi * cutoff_hz
-    ps = [wc * np.exp(1j * math.pi * (2 * k + order + 1) / (2 * order)) for k in range(order)]
-    num = np.prod([-p for p in ps]).real
-    poles, res = [], []
-    for k, p in enumerate(ps):
-        if p.imag < -1e-9 * wc:
-            continue  # the conjugate of a pole already taken
-        den = np.prod([p - q for j, q in enumerate(ps) if j != k]) if order > 1 else 1.0
-        poles.append(complex(p) if abs(p.imag) > 1e-9 * wc else complex(p.real, 0.0))
-        res.append(complex(num / den))
-    return poles, res
+def _non_finite(x: Any, path: str) -> Optional[str]:
+    """Path of the first non-finite number inside nested dicts/lists, or None."""
+    if isinstance(x, Mapping):
+        for k, v in x.items():
+            p = _non_finite(v, f"{path}.{k}" if path else str(k))
+            if p is not None:
+                return p
+    elif isinstance(x, (list, tuple, np.ndarray)):
+        for i, v in enumerate(x):
+            p = _non_finite(v, f"{path}[{i}]")
+            if p is not None:
+                return p
+    elif isinstance(x, (float, np.floating)) and not math.isfinite(float(x)):
+        return f"{path} = {float(x)}"
+    return None
 
 
-def mode_pf(frequency_hz: float, damping: float) -> tuple[list[complex], list[complex]]:
-    """Partial fractions of ``w^2 / (s^2 + 2 zeta w s + w^2)`` (DC gain 1)."""
-    w = 2 * math.pi * frequency_hz
-    z = min(float(damping), 0.999)
-    wd = w * math.sqrt(1 - z * z)
-    p = complex(-z * w, wd)
-    return [p], [w * w / (2j * wd)]
+def _json_default(o: Any) -> Any:
+    # numpy scalars and arrays in user-built dicts.
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    raise TypeError(f"{type(o).__name__} is not JSON serializable")
 
 
-def delay_signal(x: NDArray[np.float64], delay_s: float, dt: float) -> NDArray[np.float64]:
-    """``x(t - delay)`` with linear interpolation between samples; the record was at rest
-    (``x[0]``) before its start."""
-    if delay_s <= 0:
-        return x
-    idx = np.arange(x.size, dtype=np.float64) - delay_s / dt
-    return np.interp(idx, np.arange(x.size, dtype=np.float64), x, left=x[0])
+def _dumps(x: Any, what: str) -> str:
+    """JSON text of ``x``; a non-finite number or an object JSON cannot hold is a
+    ValueError naming ``what`` and where it is."""
+    bad = _non_finite(x, "")
+    if bad is not None:
+        name, _, value = bad.partition(" = ")
+        raise ValueError(f"{what}: {name}: must be finite, got {value}")
+    try:
+        return json.dumps(x, allow_nan=False, default=_json_default)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{what}: cannot be written as JSON ({exc})") from None
 
 
-def sample_period(t: NDArray[np.float64], what: str = "t") -> float:
-    """The sample period of a time vector (median step); errors name ``what``."""
-    if t.size < 2:
-        raise ValueError(f"{what}: need at least 2 samples")
-    d = np.diff(t)
-    if not np.all(d > 0):
-        i = int(np.argmax(~(d > 0)))
-        raise ValueError(f"{what}: time must increase strictly (row {i + 1})")
-    return float(np.median(d))
+def _blocks_json(blocks: Any) -> str:
+    """JSON text of a list of block dicts; errors name the block."""
+    if isinstance(blocks, (str, bytes)) or not isinstance(blocks, (list, tuple)):
+        raise ValueError(f"blocks: expected a list of dicts, got {type(blocks).__name__}")
+    for k, b in enumerate(blocks):
+        if not isinstance(b, Mapping):
+            raise ValueError(f"blocks[{k}]: expected a dict with a 'type' key, got {type(b).__name__}")
+        _dumps(dict(b), f"blocks[{k}] ({b.get('type', '?')})")
+    return _dumps([dict(b) for b in blocks], "blocks")
 
 
-# --------------------------------------------------------------------------------------
-# Effects applied to a hysteresis output.
-# --------------------------------------------------------------------------------------
-def _check_params(name: str, params: Any, source: str) -> dict[str, Any]:
-    if name not in EFFECT_PARAMS:
-        raise ValueError(f"{source}: unknown effect {name!r} (known: {', '.join(EFFECT_PARAMS)})")
-    if not isinstance(params, dict):
-        raise ValueError(f"{source}: params of effect {name!r} must be an object")
-    out: dict[str, Any] = {}
-    for k in EFFECT_PARAMS[name]:
-        if k not in params:
-            if name == "drift":
-                out[k] = 0.0
-                continue
-            if name == "lowpass" and k == "order":
-                out[k] = 2
-                continue
-            raise ValueError(f"{source}: effect {name!r} lacks parameter {k!r}")
-        v = params[k]
-        vals = v if isinstance(v, list) else [v]
-        if not all(isinstance(q, (int, float)) and not isinstance(q, bool) and math.isfinite(q) for q in vals):
-            raise ValueError(f"{source}: effect {name!r} parameter {k!r} must be finite number(s), got {v!r}")
-        out[k] = [float(q) for q in v] if isinstance(v, list) else float(v)
-    if name == "delay" and out["delay_s"] < 0:
-        raise ValueError(f"{source}: delay_s must be >= 0")
-    if name == "lowpass":
-        if out["cutoff_hz"] <= 0 or int(out["order"]) not in (1, 2, 3, 4):
-            raise ValueError(f"{source}: lowpass needs cutoff_hz > 0 and order 1-4")
-        out["order"] = int(out["order"])
-    if name == "vibration" and (out["frequency_hz"] <= 0 or out["damping"] <= 0):
-        raise ValueError(f"{source}: vibration needs frequency_hz > 0 and damping > 0")
-    if name == "creep":
-        if not isinstance(out["taus_s"], list) or not isinstance(out["amplitudes"], list) \
-                or len(out["taus_s"]) != len(out["amplitudes"]) or any(x <= 0 for x in out["taus_s"]):
-            raise ValueError(f"{source}: creep needs equal-length lists taus_s (> 0) and amplitudes")
-    if name == "rate" and out["tau_s"] <= 0:
-        raise ValueError(f"{source}: rate needs tau_s > 0")
-    return out
+def _check_finite(d: Any) -> None:
+    """A parsed file holds no NaN or inf (Python's JSON reads them; the errors name the
+    block and field)."""
+    if isinstance(d, Mapping) and isinstance(d.get("blocks"), list):
+        _blocks_json(d["blocks"])
+    _dumps(d, "chain")
 
 
-def apply_linear(name: str, p: dict[str, Any], x: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
-    """One linear block (creep, vibration, lowpass, delay) applied to ``x``."""
-    if name == "creep":
-        # "_norm" (internal, used while fitting): y = x + sum c (LP[x] - x), DC gain 1, so
-        # the masses need not rescale as the gains change.
-        norm = bool(p.get("_norm"))
-        y = x.copy()
-        for tau, c in zip(p["taus_s"], p["amplitudes"]):
-            if c != 0:
-                lp = lti(x, dt, [complex(-1 / tau)], [complex(1 / tau)])
-                y += c * (lp - x) if norm else c * lp
-        return y
-    if name == "vibration":
-        poles, res = mode_pf(p["frequency_hz"], p["damping"])
-        return lti(x, dt, poles, res)
-    if name == "lowpass":
-        poles, res = butterworth_pf(p["cutoff_hz"], int(p["order"]))
-        return lti(x, dt, poles, res)
-    if name == "delay":
-        return delay_signal(x, p["delay_s"], dt)
-    raise ValueError(f"not a linear effect: {name}")
+def _time_and_input(t: ArrayLike, u: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    tt, uu = as_signal("t", t), as_signal("u", u)
+    if tt.shape != uu.shape:
+        raise ValueError(f"u: length {uu.size} does not match t (length {tt.size})")
+    return tt, uu
 
 
-def partial_fractions(name: str, p: dict[str, Any]) -> tuple[list[complex], list[complex], float]:
-    """The creep, vibration or low-pass block as (poles, residues, direct term), the form
-    :func:`lti` runs (a complex pole stands for its conjugate pair)."""
-    if name == "creep":
-        taus, cs = p["taus_s"], p["amplitudes"]
-        poles = [complex(-1 / tau) for tau, c in zip(taus, cs) if c != 0]
-        res = [complex(c / tau) for tau, c in zip(taus, cs) if c != 0]
-        # "_norm": y = x + sum c (LP[x] - x); otherwise y = x + sum c LP[x].
-        direct = 1.0 - float(sum(cs)) if p.get("_norm") else 1.0
-        return poles, res, direct
-    if name == "vibration":
-        poles, res = mode_pf(p["frequency_hz"], p["damping"])
-        return poles, res, 0.0
-    if name == "lowpass":
-        poles, res = butterworth_pf(p["cutoff_hz"], int(p["order"]))
-        return poles, res, 0.0
-    raise ValueError(f"not a linear block with poles: {name}")
-
-
-def rate_term(p: dict[str, Any], u: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
-    """The rate branch ``gain_s * s / (1 + s tau) u``: the input velocity, low-passed."""
-    tau = p["tau_s"]
-    d = lti(u, dt, [complex(-1 / tau)], [complex(-1 / tau ** 2)], direct=1 / tau)
-    return p["gain_s"] * d
-
-
-def apply_effects(effects: dict[str, dict[str, Any]], t: NDArray[np.float64], u: NDArray[np.float64],
-                  h: NDArray[np.float64], dt: float, stop_before: Optional[str] = None) -> NDArray[np.float64]:
-    """Run the effects (a dict name -> params) over the hysteresis output ``h`` in the
-    DESIGN order. ``stop_before`` returns the signal entering that block."""
-    x = h
-    for name in ORDER:
-        if name == stop_before:
-            return x
-        if name not in effects:
-            continue
-        p = effects[name]
-        if name == "rate":
-            x = x + rate_term(p, u, dt)
-        elif name == "drift":
-            x = x * (1 + p["gain_per_s"] * t) + p["offset"] + p["offset_per_s"] * t
-        else:
-            x = apply_linear(name, p, x, dt)
-    return x
+def _opt_float(name: str, x: Optional[float]) -> Optional[float]:
+    if x is None:
+        return None
+    if isinstance(x, bool) or not isinstance(x, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name}: expected a number or None, got {x!r}")
+    return float(x)
 
 
 class Chain:
-    """A Preisach model followed by effects; see the module doc.
+    """A chain of blocks; see the module doc.
 
-    ``effects`` is a list of ``{"name": ..., "params": {...}}`` dicts (or a dict
-    name -> params)."""
+    ``Chain(model, effects)``: an identified :class:`~preisach.PreisachModel` (or None)
+    followed by effects, a list of ``{"name": ..., "params": {...}}`` dicts or a dict
+    name -> params (``rate``, ``creep``, ``vibration``, ``lowpass``, ``delay``,
+    ``drift``), applied in that fixed order; the model's fit report goes with it. :meth:`from_blocks` builds any chain;
+    :class:`preisach.sim.Stage` is a chain built from blocks at a sample rate.
 
-    def __init__(self, model: PreisachModel, effects: Any = ()) -> None:
-        self.model = model
-        items = effects.items() if isinstance(effects, dict) else [(e.get("name"), e.get("params")) for e in effects]
-        self.effects: dict[str, dict[str, Any]] = {}
-        for name, params in items:
-            if name in self.effects:
-                raise ValueError(f"chain: effect {name!r} given twice")
-            self.effects[str(name)] = _check_params(str(name), params, "chain")
+    A chain with a ``sample_rate_hz`` also runs sample by sample at that rate, keeping
+    its state (``run``, ``step``, ``reset``, ``reset_state``, ``time_s``)."""
 
-    def predict(self, t: ArrayLike, u: ArrayLike) -> NDArray[np.float64]:
-        """Chain output for input ``u`` sampled at times ``t`` (seconds; any sample rate;
-        ``t`` is absolute time, which the drift block uses)."""
-        tt = np.asarray(t, dtype=np.float64).ravel()
-        uu = np.asarray(u, dtype=np.float64).ravel()
-        if tt.shape != uu.shape:
-            raise ValueError(f"t: length {tt.size} does not match u (length {uu.size})")
-        if not (np.all(np.isfinite(tt)) and np.all(np.isfinite(uu))):
-            raise ValueError("t, u: must be finite (NaN or inf found)")
-        dt = sample_period(tt) if tt.size > 1 else 1.0
-        h = self.model.predict(uu)
-        return apply_effects(self.effects, tt, uu, h, dt)
+    _core: Any
+
+    def __init__(self, model: Optional[PreisachModel] = None, effects: Any = ()) -> None:
+        if model is not None and not isinstance(model, PreisachModel):
+            raise ValueError(f"model: expected a preisach.PreisachModel or None, got {type(model).__name__}")
+        if isinstance(effects, Mapping):
+            eff: Any = dict(effects)
+        elif isinstance(effects, (list, tuple)):
+            eff = list(effects)
+        else:
+            raise ValueError(f"effects: expected a list of {{name, params}} dicts or a dict, got {effects!r}")
+        text = _dumps(eff, "effects")
+        if model is None:
+            self._core = _preisach.Chain.from_effects(None, "stepwise", text)
+            return
+        report = None if model.report is None else _dumps(model.report.to_dict(), "report")
+        self._core = _preisach.Chain.from_effects(model._core, model.output, text, report)
+
+    @classmethod
+    def _wrap(cls: type[_C], core: Any) -> _C:
+        c = cls.__new__(cls)
+        c._core = core
+        return c
+
+    @classmethod
+    def from_blocks(cls, blocks: Any, sample_rate_hz: Optional[float] = None,
+                    initial_input: Optional[float] = None) -> "Chain":
+        """A chain of ``blocks`` (dicts with a ``"type"`` key, see the module doc; a
+        version-1 stage's block fields are read too)."""
+        text = _blocks_json(blocks)
+        fs = _opt_float("sample_rate_hz", sample_rate_hz)
+        x0 = _opt_float("initial_input", initial_input)
+        return cls._wrap(_preisach.Chain.from_blocks(text, fs, x0))
+
+    # --- what it is ----------------------------------------------------------------
+    def to_json(self) -> str:
+        """The version-2 JSON text."""
+        return str(self._core.to_json())
 
     def to_dict(self) -> dict[str, Any]:
-        """The versioned JSON-ready dict."""
-        return {
-            "format": FORMAT,
-            "version": VERSION,
-            "model": self.model.to_dict(),
-            "effects": [{"name": n, "params": self.effects[n]} for n in ORDER if n in self.effects],
-        }
+        """The version-2 JSON-ready dict (``format``, ``version``, ``blocks``, ...)."""
+        return dict(json.loads(self.to_json()))
+
+    @property
+    def blocks(self) -> list[dict[str, Any]]:
+        """The blocks' parameters in signal order (copies; edit them and build a new chain)."""
+        return list(self.to_dict()["blocks"])
+
+    @property
+    def sample_rate_hz(self) -> Optional[float]:
+        """The chain's own sample rate, Hz (None: it runs only on records)."""
+        fs = self._core.sample_rate_hz
+        return None if fs is None else float(fs)
+
+    @sample_rate_hz.setter
+    def sample_rate_hz(self, fs: Optional[float]) -> None:
+        self._core.sample_rate_hz = _opt_float("sample_rate_hz", fs)
+
+    @property
+    def initial_input(self) -> Optional[float]:
+        """The input at which the stage rested before a record (None: its first input).
+        Blocks start in equilibrium with it; if it differs from the first input, the
+        first sample is a step."""
+        x = self._core.initial_input
+        return None if x is None else float(x)
+
+    @initial_input.setter
+    def initial_input(self, x: Optional[float]) -> None:
+        self._core.initial_input = _opt_float("initial_input", x)
+
+    @property
+    def model(self) -> Optional[PreisachModel]:
+        """The identified model of the first hysteresis block (None if the chain has no
+        identified hysteresis block first among its hysteresis blocks)."""
+        kinds = self._core.kinds()
+        if "hysteresis" not in kinds:
+            return None
+        got = self._core.identified_model(kinds.index("hysteresis"))
+        return None if got is None else PreisachModel._wrap(*got)
+
+    @property
+    def effects(self) -> dict[str, dict[str, Any]]:
+        """The blocks after an identified model, name -> params (the pinned names; a
+        vibration of one mode as ``frequency_hz``, ``damping``). ValueError if the chain
+        is not a model followed by distinct effects (use :attr:`blocks`)."""
+        blocks = self.blocks
+        if blocks and blocks[0].get("type") == "hysteresis":
+            if self.model is None:
+                raise ValueError("effects: the chain's hysteresis is not an identified model; use .blocks")
+            blocks = blocks[1:]
+        out: dict[str, dict[str, Any]] = {}
+        for b in blocks:
+            name = b.pop("type")
+            if name in out or name == "hysteresis":
+                raise ValueError(f"effects: the chain has more than one {name} block; use .blocks")
+            if name == "vibration" and len(b["modes"]) == 1:
+                b = dict(b["modes"][0])
+            out[name] = b
+        return out
+
+    def kinds(self) -> list[str]:
+        """Block type names in signal order."""
+        return list(self._core.kinds())
+
+    # --- records -------------------------------------------------------------------
+    def predict(self, t: ArrayLike, u: ArrayLike, initial_input: Optional[float] = None) -> NDArray[np.float64]:
+        """Deterministic output for input ``u`` sampled at times ``t`` (seconds, strictly
+        increasing and regular; the rate is taken from ``t``, and ``t`` is the absolute
+        time drift uses). Noise and quantizers are off; linear blocks are exact for an
+        input linear between samples. ``initial_input`` overrides the chain's own."""
+        tt, uu = _time_and_input(t, u)
+        return self._core.predict(tt, uu, _opt_float("initial_input", initial_input))  # type: ignore[no-any-return]
+
+    def simulate(self, t: ArrayLike, u: ArrayLike, initial_input: Optional[float] = None) -> NDArray[np.float64]:
+        """The simulated measurement of input ``u`` at times ``t``: sample by sample at
+        the rate of ``t`` (input held over each sample interval), with noise (from its
+        seeds) and quantization. A fresh run from rest every call."""
+        tt, uu = _time_and_input(t, u)
+        return self._core.simulate(tt, uu, _opt_float("initial_input", initial_input))  # type: ignore[no-any-return]
+
+    def response(self, f_hz: ArrayLike) -> NDArray[np.complex128]:
+        """Frequency response of the chain's linear blocks (creep, vibration, lowpass,
+        delay, sensor; any other block is an error) at ``f_hz``."""
+        return self._core.response(as_signal("f_hz", f_hz, allow_empty=True))  # type: ignore[no-any-return]
+
+    # --- per sample at the chain's own rate ------------------------------------------
+    @property
+    def time_s(self) -> float:
+        """Absolute time of the next sample, seconds (drift depends on it)."""
+        return float(self._core.time_s)
+
+    @time_s.setter
+    def time_s(self, t: float) -> None:
+        self._core.time_s = float(t)
+
+    def run(self, u: ArrayLike) -> NDArray[np.float64]:
+        """Run the input ``u`` (1-D, finite) from the current state at the chain's own
+        rate; returns ``y`` (float64, same length). State and time carry over."""
+        return self._core.run(as_signal("u", u, allow_empty=True))  # type: ignore[no-any-return]
+
+    def step(self, u: float) -> float:
+        """One sample."""
+        if isinstance(u, bool) or not isinstance(u, (int, float, np.integer, np.floating)):
+            raise ValueError(f"u: expected a number, got {u!r}")
+        return float(self._core.step(float(u)))
+
+    def reset(self) -> None:
+        """Back to rest, time 0, noise streams from their seeds: a replay is identical.
+        The next sample finds every block in equilibrium with the initial input."""
+        self._core.reset()
+
+    def reset_state(self) -> None:
+        """Back to rest for a new record; absolute time and noise streams run on."""
+        self._core.reset_state()
+
+    def copy(self: _C) -> _C:
+        """An independent copy (same parameters and state)."""
+        return type(self)._wrap(self._core.copy())
+
+    # --- files ---------------------------------------------------------------------
+    @classmethod
+    def from_json(cls: type[_C], text: Union[str, bytes]) -> _C:
+        """A chain from JSON text of any chain, model or stage file (version 1 or 2)."""
+        if isinstance(text, bytes):
+            text = text.decode("utf-8")
+        if not isinstance(text, str):
+            raise ValueError(f"text: expected a JSON string, got {type(text).__name__}")
+        try:
+            d = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"corrupt chain: not JSON ({exc})") from None
+        _check_finite(d)
+        return cls._wrap(_preisach.Chain.from_json(text))
 
     @classmethod
     def from_dict(cls, d: Any, source: str = "chain") -> "Chain":
-        """Rebuild a chain from :meth:`to_dict` output; ValueError names ``source``."""
-        if not isinstance(d, dict) or d.get("format") != FORMAT:
-            raise ValueError(f"corrupt {source}: 'format' must be {FORMAT!r}")
-        if d.get("version") != VERSION:
-            raise ValueError(f"corrupt {source}: unsupported 'version' {d.get('version')!r} (this build reads {VERSION})")
-        model = PreisachModel.from_dict(d.get("model"), source=f"{source} (model)")
-        eff = d.get("effects", [])
-        if not isinstance(eff, list) or not all(isinstance(e, dict) for e in eff):
-            raise ValueError(f"corrupt {source}: 'effects' must be a list of objects")
+        """A chain from a dict of any chain, model or stage file; errors name ``source``."""
+        if not isinstance(d, Mapping):
+            raise ValueError(f"corrupt {source}: expected a JSON object")
         try:
-            return cls(model, eff)
+            _check_finite(d)
+            return cls._wrap(_preisach.Chain.from_json(_dumps(d, "chain")))
         except ValueError as exc:
-            raise ValueError(f"corrupt {source}: {exc}") from None
+            raise ValueError(f"{source}: {exc}" if source != "chain" else str(exc)) from None
 
     def save(self, path: PathLike) -> None:
-        """Write the chain as JSON (atomically)."""
-        write_text(path, json.dumps(self.to_dict(), allow_nan=False) + "\n")
+        """Write the chain as version-2 JSON (atomically)."""
+        write_text(path, self.to_json() + "\n")
 
     @classmethod
     def load(cls, path: PathLike) -> "Chain":
-        """Read a chain written by :meth:`save`."""
+        """Read any chain, model or stage file."""
         p = Path(path)
         try:
-            d = json.loads(p.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise ValueError(f"{p}: cannot read chain ({exc})") from None
-        return cls.from_dict(d, source=f"chain file {p}")
+            text = p.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ValueError(f"{p}: cannot read ({exc})") from None
+        try:
+            return cls.from_json(text)
+        except ValueError as exc:
+            raise ValueError(f"{p}: {exc}") from None
 
     def __repr__(self) -> str:
-        return f"Chain({self.model!r}, effects={list(self.effects)})"
+        fs = self.sample_rate_hz
+        rate = "" if fs is None else f", sample_rate_hz={fs:g}"
+        return f"{type(self).__name__}({' -> '.join(self.kinds())}{rate})"
+
+
+def load(path: PathLike) -> Union[PreisachModel, Chain]:
+    """Read a model, chain or stage file (version 1 or 2): a
+    :class:`~preisach.PreisachModel` when the file is one identified hysteresis block,
+    else a :class:`Chain`."""
+    chain = Chain.load(path)
+    model = PreisachModel._of_chain(chain)
+    return chain if model is None else model

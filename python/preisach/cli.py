@@ -54,35 +54,20 @@ def _cmd_identify(a: argparse.Namespace) -> int:
     return 0
 
 
-def _load_predictor(path: str) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
-    """A model file or a chain file (from ``diagnose --save-model``) as a function of
-    (t, u) -> y."""
-    import json
+def _load_chain(path: str) -> Any:
+    """A model, chain or stage file as a chain (``preisach.load``)."""
+    from preisach.chain import Chain, load
 
-    from preisach.model import PreisachModel
-
-    try:
-        with open(path, encoding="utf-8") as f:
-            d = json.load(f)
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: cannot read ({exc})") from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"corrupt model file {path}: not JSON ({exc})") from None
-    if isinstance(d, dict) and d.get("format") == "preisach-chain":
-        from preisach.chain import Chain
-
-        chain = Chain.from_dict(d, source=f"chain file {path}")
-        return chain.predict
-    model = PreisachModel.from_dict(d, source=f"model file {path}")
-    return lambda t, u: model.predict(u)
+    obj = load(path)
+    return obj if isinstance(obj, Chain) else Chain(obj)
 
 
 def _cmd_predict(a: argparse.Namespace) -> int:
     from preisach.io import read_record, write_csv
 
-    predict = _load_predictor(a.model)
+    chain = _load_chain(a.model)
     rec = read_record(a.data, ["t", "u"])
-    y = predict(rec["t"], rec["u"])
+    y = chain.predict(rec["t"], rec["u"])
     write_csv(a.output_path, {"t": rec["t"], "y": y})
     msg = f"wrote {a.output_path} ({len(y)} samples)"
     if "y" in rec:
@@ -93,10 +78,14 @@ def _cmd_predict(a: argparse.Namespace) -> int:
 
 
 def _cmd_invert(a: argparse.Namespace) -> int:
+    from preisach.chain import load
     from preisach.io import read_record, write_csv
     from preisach.model import PreisachModel
 
-    model = PreisachModel.load(a.model)
+    model = load(a.model)
+    if not isinstance(model, PreisachModel):
+        raise ValueError(f"{a.model}: a chain ({' -> '.join(model.kinds())}), not a single identified model: "
+                         f"invert inverts a model (identify one, or use the model the chain was built on)")
     rec = read_record(a.ref, ["t", "r"])
     u = model.invert(rec["r"], method=a.method, lookahead=a.lookahead)
     write_csv(a.output_path, {"t": rec["t"], "u": u})
@@ -110,19 +99,12 @@ def _cmd_simulate(a: argparse.Namespace) -> int:
 
     if (a.stage is None) == (a.preset is None):
         raise UsageError("preisach simulate: give either STAGE.json or --preset NAME (see --help)")
-    if a.preset is not None:
-        stage = Stage.preset(a.preset)
-    else:
-        try:
-            with open(a.stage, encoding="utf-8") as f:
-                text = f.read()
-        except OSError as exc:
-            raise ValueError(f"{a.stage}: cannot read ({exc})") from None
-        stage = Stage.from_json(text)
+    chain = Stage.preset(a.preset) if a.preset is not None else _load_chain(a.stage)
     rec = read_record(a.input, ["t", "u"])
-    y = stage.run(rec["u"])
+    y = chain.simulate(rec["t"], rec["u"])
     write_csv(a.output_path, {"t": rec["t"], "u": rec["u"], "y": y})
-    print(f"wrote {a.output_path} ({len(y)} samples at {stage.sample_rate_hz:g} Hz)")
+    fs = (rec["t"].size - 1) / (rec["t"][-1] - rec["t"][0]) if rec["t"].size > 1 else float("nan")
+    print(f"wrote {a.output_path} ({len(y)} samples at the input's {fs:g} Hz)")
     return 0
 
 

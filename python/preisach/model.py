@@ -4,8 +4,7 @@ from __future__ import annotations
 import json
 import math
 import warnings
-from pathlib import Path
-from typing import Any, Optional, Sequence, Union
+from typing import Any, Optional, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -14,8 +13,6 @@ from preisach import _preisach
 from preisach._validate import as_n_h, as_range, as_signal
 from preisach.io import PathLike, write_text
 
-FORMAT = "preisach-model"
-VERSION = 1
 _OUTPUTS = ("stepwise", "interpolated")
 
 
@@ -250,74 +247,61 @@ class PreisachModel:
         return Inverter(self, method=method, lookahead=lookahead)
 
     # --- persistence ---------------------------------------------------------------
+    def to_json(self) -> str:
+        """The JSON text :meth:`save` writes: a version-2 ``preisach-chain`` of one
+        identified hysteresis block, with the fit report."""
+        from preisach.chain import Chain
+
+        return Chain(self).to_json()
+
     def to_dict(self) -> dict[str, Any]:
-        """The versioned JSON-ready dict that :meth:`save` writes."""
-        w = self.weights
-        d: dict[str, Any] = {
-            "format": FORMAT,
-            "version": VERSION,
-            "n_h": self.n_h,
-            "u_range": list(self.u_range),
-            "offset": self.offset,
-            "output": self._output,
-            # Upper triangle, row i holds w[i, i:].
-            "weights": [w[i, i:].tolist() for i in range(self.n_h)],
-        }
-        if self.report is not None:
-            d["report"] = self.report.to_dict()
-        return d
+        """The JSON-ready dict :meth:`save` writes (see :meth:`to_json`)."""
+        return dict(json.loads(self.to_json()))
+
+    @classmethod
+    def _of_chain(cls, chain: Any) -> Optional["PreisachModel"]:
+        """The model of a chain that is one identified hysteresis block (no initial
+        state), else None."""
+        if chain.kinds() != ["hysteresis"] or chain.initial_input is not None:
+            return None
+        got = chain._core.identified_model(0)
+        block = chain.blocks[0]
+        if got is None or block.get("initial_extrema"):
+            return None
+        model = cls._wrap(*got)
+        report = chain.to_dict().get("report")
+        if isinstance(report, dict):
+            model.report = FitReport(report)
+        return model
 
     @classmethod
     def from_dict(cls, d: Any, source: str = "model") -> "PreisachModel":
-        """Rebuild a model from :meth:`to_dict` output, validating every field."""
-        def bad(msg: str) -> ValueError:
-            return ValueError(f"corrupt {source}: {msg}")
+        """Rebuild a model from :meth:`to_dict` output (or a version-1 model dict),
+        validating every field."""
+        from preisach.chain import Chain
 
-        if not isinstance(d, dict):
-            raise bad("expected a JSON object")
-        if d.get("format") != FORMAT:
-            raise bad(f"'format' must be {FORMAT!r}, got {d.get('format')!r}")
-        if d.get("version") != VERSION:
-            raise bad(f"unsupported 'version' {d.get('version')!r} (this build reads {VERSION})")
-        n_h = d.get("n_h")
-        if isinstance(n_h, bool) or not isinstance(n_h, int) or n_h < 1:
-            raise bad(f"'n_h' must be an integer >= 1, got {n_h!r}")
-        rows = d.get("weights")
-        if not isinstance(rows, list) or len(rows) != n_h:
-            raise bad(f"'weights' must be a list of {n_h} rows")
-        w = np.zeros((n_h, n_h))
-        for i, row in enumerate(rows):
-            if not isinstance(row, list) or len(row) != n_h - i:
-                raise bad(f"'weights' row {i} must hold {n_h - i} values")
-            try:
-                w[i, i:] = np.asarray(row, dtype=np.float64)
-            except (TypeError, ValueError):
-                raise bad(f"'weights' row {i} holds non-numbers") from None
-        try:
-            model = cls(w, d.get("u_range"), d.get("offset", 0.0), d.get("output", "stepwise"))  # type: ignore[arg-type]
-        except ValueError as exc:
-            raise bad(str(exc)) from None
-        if isinstance(d.get("report"), dict):
-            model.report = FitReport(d["report"])
+        model = cls._of_chain(Chain.from_dict(d, source=source))
+        if model is None:
+            raise ValueError(f"{source}: a chain of blocks, not a single identified model; use preisach.load")
         return model
 
     def save(self, path: PathLike) -> None:
-        """Write the model as versioned JSON (atomically: temporary file, then rename)."""
-        write_text(path, json.dumps(self.to_dict(), allow_nan=False) + "\n")
+        """Write the model (atomically: temporary file, then rename) as a version-2
+        ``preisach-chain`` of one identified hysteresis block, with its fit report."""
+        write_text(path, self.to_json() + "\n")
 
     @classmethod
     def load(cls, path: PathLike) -> "PreisachModel":
-        """Read a model saved by :meth:`save`; rejects bad files with a clear ValueError."""
-        p = Path(path)
-        try:
-            text = p.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ValueError(f"{p}: cannot read ({exc})") from None
-        try:
-            d = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"corrupt model file {p}: not JSON ({exc})") from None
-        return cls.from_dict(d, source=f"model file {p}")
+        """Read a model saved by :meth:`save` (or a version-1 model file); rejects bad
+        files, and chains of more than the model, with a clear ValueError."""
+        from preisach.chain import Chain
+
+        chain = Chain.load(path)
+        model = cls._of_chain(chain)
+        if model is None:
+            raise ValueError(f"{path}: a chain ({' -> '.join(chain.kinds())}), not a single identified model: "
+                             f"use preisach.load")
+        return model
 
 
 class Stream:

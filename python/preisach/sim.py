@@ -1,7 +1,9 @@
 """The plant simulator and the 100 kHz hardware-in-the-loop style sample loop.
 
-A :class:`Stage` is a chain of blocks (amplifier, hysteresis, creep, vibration, sensor,
-lowpass, delay, noise, quantizer, drift) run one sample at a time in Rust. The
+A :class:`Stage` is a :class:`~preisach.Chain` of blocks (amplifier, hysteresis, rate,
+creep, vibration, sensor, lowpass, delay, noise, quantizer, drift; see
+``docs/method/blocks.md``) at its own sample rate, run one sample at a time in Rust;
+:meth:`~preisach.Chain.simulate` runs it on a record at the record's own rate. The
 ``paper`` preset mirrors the stage of Stakvik et al. (2015, §3.1):
 
 =============  ==============================================================
@@ -19,21 +21,21 @@ sensor         1/5 V/µm, 4th-order Butterworth anti-aliasing at 20 kHz, optiona
 
 The output ``y`` is the sensor voltage (0.2 V per µm).
 
-A record starts at rest: blocks start in equilibrium with the first sample. After
-construction, :meth:`Stage.reset` and :meth:`Stage.reset_state`, every stateful linear
-block (low-pass filters, vibration modes, creep elements, delay line, the amplifier's
-slew limiter) sets its state to the steady state for the first input, so a constant
-input gives a constant output from the first sample (no ringing of the 780 Hz mode at
-the start of a run). The hysteresis memory starts with all relays down, then the first
-input; drift and noise are unaffected.
+A record starts at rest: blocks start in equilibrium with the stage's initial input (by
+default the first sample). After construction, :meth:`Stage.reset` and
+:meth:`Stage.reset_state`, every stateful linear block (low-pass filters, vibration
+modes, creep elements, delay line, the amplifier's slew limiter) sets its state to the
+steady state for that input, so a constant input gives a constant output from the first
+sample (no ringing of the 780 Hz mode at the start of a run). The hysteresis memory
+starts with all relays down, then the initial input; drift and noise are unaffected.
 
-:func:`run_loop` drives a stage with a compensator built from a
+:func:`run_loop` drives a stage (or any chain with a sample rate, e.g. a diagnosed
+chain) with a compensator built from a
 :class:`~preisach.PreisachModel` (the streaming inverse) and times every sample
 against the sample period (10 µs at 100 kHz).
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from typing import Any, Mapping, Optional, Sequence
@@ -43,61 +45,45 @@ from numpy.typing import ArrayLike, NDArray
 
 from preisach import _preisach
 from preisach._validate import as_signal
+from preisach.chain import VERSION, Chain, _blocks_json, _dumps
 
 __all__ = ["Stage", "LoopResult", "Timing", "run_loop", "hysteresis_block", "CHAIN_VERSION", "METHODS"]
 
 #: Version of the chain JSON format written by this build.
-CHAIN_VERSION = 1
+CHAIN_VERSION = VERSION
 #: Compensators :func:`run_loop` can build.
 METHODS = ("continuous", "interpolated", "closest", "identity")
 #: Default look-ahead of the ``interpolated`` method in :func:`run_loop`, samples.
 DEFAULT_LOOKAHEAD = 2000
 
 
-class Stage:
-    """A simulated stage: a chain of plant blocks with its state.
+class Stage(Chain):
+    """A simulated stage: a :class:`~preisach.Chain` of plant blocks at its own sample
+    rate, with its state.
 
     Parameters
     ----------
     blocks : sequence of dict
         Blocks in signal order, each a dict with a ``"type"`` key and the block's
-        parameters, e.g. ``{"type": "vibration", "modes": [{"freq_hz": 780,
-        "damping": 0.02}]}`` (the chain JSON format; see the README / ``to_json()``).
+        parameters, e.g. ``{"type": "vibration", "modes": [{"frequency_hz": 780,
+        "damping": 0.02}]}`` (the chain JSON format, ``docs/method/blocks.md``; the
+        fields of version-1 stage files, e.g. ``freq_hz``, are read too).
     sample_rate_hz : float
-        Sample rate every block is discretized for (default 100 kHz).
+        The stage's own rate (default 100 kHz): what :meth:`run`, :meth:`step` and
+        :func:`run_loop` use. :meth:`~preisach.Chain.simulate` runs at any record's rate.
 
-    Bad parameters raise ``ValueError`` naming the parameter and the block.
+    Bad parameters raise ``ValueError`` naming the block and the parameter.
     Use :meth:`preset` for a ready-made stage and :meth:`from_json` to load one.
     """
 
     def __init__(self, blocks: Sequence[Mapping[str, Any]], sample_rate_hz: float = 100_000.0) -> None:
-        if isinstance(blocks, (str, bytes)) or not isinstance(blocks, Sequence):
-            raise ValueError(f"blocks: expected a list of dicts, got {type(blocks).__name__}")
-        for k, b in enumerate(blocks):
-            if not isinstance(b, Mapping):
-                raise ValueError(f"blocks[{k}]: expected a dict with a 'type' key, got {type(b).__name__}")
         if isinstance(sample_rate_hz, bool) or not isinstance(sample_rate_hz, (int, float, np.integer, np.floating)):
             raise ValueError(f"sample_rate_hz: expected a number, got {sample_rate_hz!r}")
         fs = float(sample_rate_hz)
         if not math.isfinite(fs) or fs <= 0:
             raise ValueError(f"sample_rate_hz: must be finite and > 0, got {fs}")
-        for k, b in enumerate(blocks):
-            bad = _non_finite(b, "")
-            if bad is not None:
-                name, _, value = bad.partition(" = ")
-                raise ValueError(f"{name}: must be finite, got {value} (blocks[{k}], {b.get('type', '?')})")
-        try:
-            text = json.dumps({"version": CHAIN_VERSION, "sample_rate_hz": fs, "blocks": [dict(b) for b in blocks]},
-                              allow_nan=False, default=_json_default)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"blocks: cannot be written as JSON ({exc})") from None
-        self._core = _preisach.Chain.from_json(text)
-
-    @classmethod
-    def _wrap(cls, core: Any) -> "Stage":
-        s = cls.__new__(cls)
-        s._core = core
-        return s
+        self._core = _preisach.Chain.from_blocks(_blocks_json(blocks), fs, None)
+        self._core.check_stage()
 
     @classmethod
     def preset(cls, name: str = "paper", **overrides: Any) -> "Stage":
@@ -108,100 +94,26 @@ class Stage:
         ``drift_gain_per_s``, ``drift_offset_per_s``, ``sample_rate_hz``."""
         if not isinstance(name, str):
             raise ValueError(f"name: expected a preset name, got {name!r}")
-        bad = _non_finite(overrides, "")
-        if bad is not None:
-            name_, _, value = bad.partition(" = ")
-            raise ValueError(f"{name_}: must be finite, got {value} (preset {name!r})")
-        try:
-            text = json.dumps(overrides, allow_nan=False, default=_json_default)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"overrides: cannot be written as JSON ({exc})") from None
+        text = _dumps(overrides, f"preset {name!r}")
         return cls._wrap(_preisach.Chain.preset(name, text))
 
     @classmethod
-    def from_json(cls, text: str) -> "Stage":
-        """Load a stage from chain JSON text (as written by :meth:`to_json`).
-        Malformed JSON raises ``ValueError('corrupt chain: ...')``."""
-        if isinstance(text, bytes):
-            text = text.decode("utf-8")
-        if not isinstance(text, str):
-            raise ValueError(f"text: expected a JSON string, got {type(text).__name__}")
-        return cls._wrap(_preisach.Chain.from_json(text))
-
-    def to_json(self) -> str:
-        """The versioned chain JSON (parameters only, no state)."""
-        return str(self._core.to_json())
-
-    def to_dict(self) -> dict[str, Any]:
-        """The chain JSON as a dict (``version``, ``sample_rate_hz``, ``blocks``)."""
-        return dict(json.loads(self.to_json()))
-
-    @property
-    def blocks(self) -> list[dict[str, Any]]:
-        """The blocks' parameters in signal order (copies; edit and build a new Stage)."""
-        return list(self.to_dict()["blocks"])
-
-    @property
-    def sample_rate_hz(self) -> float:
-        """Sample rate, Hz."""
-        return float(self._core.sample_rate_hz)
-
-    @property
-    def time_s(self) -> float:
-        """Absolute time of the next sample, seconds (drift depends on it)."""
-        return float(self._core.time_s)
-
-    @time_s.setter
-    def time_s(self, t: float) -> None:
-        self._core.time_s = float(t)
-
-    def run(self, u: ArrayLike) -> NDArray[np.float64]:
-        """Run the input ``u`` (1-D, finite) from the current state; returns ``y``
-        (float64, same length). State and time carry over to the next call."""
-        return self._core.run(as_signal("u", u, allow_empty=True))  # type: ignore[no-any-return]
-
-    def step(self, u: float) -> float:
-        """One sample."""
-        if isinstance(u, bool) or not isinstance(u, (int, float, np.integer, np.floating)):
-            raise ValueError(f"u: expected a number, got {u!r}")
-        return float(self._core.step(float(u)))
-
-    def reset(self) -> None:
-        """Back to rest, time 0, noise streams from their seeds: a replay is identical.
-        The next sample finds every block in equilibrium with it."""
-        self._core.reset()
-
-    def reset_state(self) -> None:
-        """Back to rest for a new record (every block in equilibrium with the next
-        sample); absolute time and noise streams run on."""
-        self._core.reset_state()
-
-    def copy(self) -> "Stage":
-        """An independent copy (same parameters and state)."""
-        return Stage._wrap(self._core.copy())
-
-    def __repr__(self) -> str:
-        return f"Stage({' -> '.join(self._core.kinds())}, sample_rate_hz={self.sample_rate_hz:g})"
+    def from_json(cls, text: Any) -> "Stage":
+        """Load a stage from the JSON text of any chain, model or stage file (version 1
+        or 2). Malformed JSON raises ``ValueError('corrupt chain: ...')``."""
+        st = cls._wrap(Chain.from_json(text)._core)
+        if st.sample_rate_hz is not None:
+            st._core.check_stage()
+        return st
 
 
 def hysteresis_block(model: Any, interpolated: bool = True) -> dict[str, Any]:
     """A ``hysteresis`` block dict holding an identified :class:`~preisach.PreisachModel`
     (so a stage can be "identified model + effects"). ``interpolated`` selects the
     continuous output (default) or the stepwise staircase."""
-    w = np.asarray(model.weights, dtype=np.float64)
-    n = w.shape[0]
-    lo, hi = model.u_range
-    return {
-        "type": "hysteresis",
-        "source": "identified",
-        "lo": float(lo),
-        "hi": float(hi),
-        "n_h": int(n),
-        # Packed upper triangle, row by row (i <= j): the core's cell order.
-        "weights": w[np.triu_indices(n)].tolist(),
-        "offset": float(model.offset),
-        "interpolated": bool(interpolated),
-    }
+    block = Chain(model).blocks[0]
+    block["output"] = "interpolated" if interpolated else "stepwise"
+    return block
 
 
 @dataclass(frozen=True)
@@ -230,7 +142,7 @@ class LoopResult:
     timing: Timing
 
 
-def run_loop(model: Any, stage: Stage, reference: ArrayLike, method: str = "continuous",
+def run_loop(model: Any, stage: Chain, reference: ArrayLike, method: str = "continuous",
              lookahead: Optional[int] = None) -> LoopResult:
     """Run the hardware-in-the-loop style sample loop: reference → compensator → DAC →
     plant chain → sensor, one sample at a time in Rust, timed per sample.
@@ -240,8 +152,10 @@ def run_loop(model: Any, stage: Stage, reference: ArrayLike, method: str = "cont
     model : PreisachModel or None
         The identified model the compensator inverts (``None`` only for
         ``method="identity"``). It maps the stage's input (DAC volts) to its output.
-    stage : Stage
-        The plant; it is reset first (rest, time 0) and left in its final state.
+    stage : Stage or Chain
+        The plant, run at its own sample rate (a chain without one, e.g. a diagnosed
+        chain saved without it, is refused); it is reset first (rest, time 0) and left in
+        its final state.
     reference : 1-D array
         Desired output, in the stage's output units (sensor volts for ``paper``).
     method : {"continuous", "interpolated", "closest", "identity"}
@@ -255,8 +169,8 @@ def run_loop(model: Any, stage: Stage, reference: ArrayLike, method: str = "cont
 
     Returns a :class:`LoopResult`.
     """
-    if not isinstance(stage, Stage):
-        raise ValueError(f"stage: expected a preisach.sim.Stage, got {type(stage).__name__}")
+    if not isinstance(stage, Chain):
+        raise ValueError(f"stage: expected a preisach.sim.Stage or a preisach.Chain, got {type(stage).__name__}")
     if method not in METHODS:
         raise ValueError(f"method: expected one of {', '.join(repr(m) for m in METHODS)}, got {method!r}")
     if method == "interpolated" and lookahead is None:
@@ -277,29 +191,3 @@ def run_loop(model: Any, stage: Stage, reference: ArrayLike, method: str = "cont
     timing = Timing(float(d["mean_ns"]), float(d["p99_ns"]), float(d["max_ns"]), int(d["misses"]),
                     float(d["budget_ns"]), int(d["samples"]))
     return LoopResult(u=d["u"], y=d["y"], error=d["error"], timing=timing)
-
-
-def _non_finite(x: Any, path: str) -> Optional[str]:
-    """Path of the first non-finite number inside nested dicts/lists, or None."""
-    if isinstance(x, Mapping):
-        for k, v in x.items():
-            p = _non_finite(v, f"{path}.{k}" if path else str(k))
-            if p is not None:
-                return p
-    elif isinstance(x, (list, tuple, np.ndarray)):
-        for i, v in enumerate(x):
-            p = _non_finite(v, f"{path}[{i}]")
-            if p is not None:
-                return p
-    elif isinstance(x, (float, np.floating)) and not math.isfinite(float(x)):
-        return f"{path} = {float(x)}"
-    return None
-
-
-def _json_default(o: Any) -> Any:
-    # numpy scalars and arrays in user-built block dicts.
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, np.generic):
-        return o.item()
-    raise TypeError(f"{type(o).__name__} is not JSON serializable")

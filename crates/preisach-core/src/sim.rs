@@ -12,7 +12,7 @@ pub trait Compensator {
 
 use std::time::Instant;
 
-use crate::blocks::Chain;
+use crate::blocks::Runtime;
 use crate::error::{check_signal, PreisachError, Result};
 
 /// `u = r`: no compensation (the baseline, and the loop test's compensator).
@@ -103,9 +103,9 @@ pub struct LoopResult {
 /// not allocate.
 ///
 /// Both the compensator and the chain are reset first (replay from rest, time 0; the
-/// chain starts in equilibrium with the first compensator output, so no start-up
-/// transient rings through the stage).
-pub fn run_loop<C: Compensator + ?Sized>(comp: &mut C, plant: &mut Chain, reference: &[f64]) -> Result<LoopResult> {
+/// chain starts in equilibrium with its initial input, by default the first compensator
+/// output, so no start-up transient rings through the stage).
+pub fn run_loop<C: Compensator + ?Sized>(comp: &mut C, plant: &mut Runtime, reference: &[f64]) -> Result<LoopResult> {
     run_loop_preview(comp, plant, reference, 0)
 }
 
@@ -117,13 +117,13 @@ pub fn run_loop<C: Compensator + ?Sized>(comp: &mut C, plant: &mut Chain, refere
 /// the compensator output that belongs to `r[k]`.
 pub fn run_loop_preview<C: Compensator + ?Sized>(
     comp: &mut C,
-    plant: &mut Chain,
+    plant: &mut Runtime,
     reference: &[f64],
     preview: usize,
 ) -> Result<LoopResult> {
     check_signal("reference", reference)?;
     let n = reference.len();
-    let budget_ns = 1e9 / plant.sample_rate_hz;
+    let budget_ns = 1e9 / plant.sample_rate_hz();
     comp.reset();
     plant.reset();
     let mut u = vec![0.0; n];

@@ -3,19 +3,28 @@
 mod common;
 
 use common::{random_input, random_model, Rng};
-use preisach_core::identify::filtered::{fit_behind, BehindOptions, Cascade, LtiBlock};
+use preisach_core::blocks::lti::C;
+use preisach_core::blocks::{CreepParams, Discretization, Filter, Lti, Mode, VibrationParams};
+use preisach_core::identify::filtered::{fit_behind, BehindOptions};
 use preisach_core::identify::{fit, FitOptions, Solver};
 
-/// `w²/(s² + 2ζw s + w²)` as one pole of the conjugate pair with its residue.
-fn mode(f: f64, zeta: f64) -> LtiBlock {
-    let w = 2.0 * std::f64::consts::PI * f;
-    let wd = w * (1.0 - zeta * zeta).sqrt();
-    // r = w² / (2j wd) = −j w² / (2 wd)
-    LtiBlock { poles: vec![(-zeta * w, wd)], residues: vec![(0.0, -w * w / (2.0 * wd))], direct: 0.0 }
+/// `w²/(s² + 2ζw s + w²)`: the vibration block of one mode.
+fn mode(f: f64, zeta: f64) -> Lti {
+    VibrationParams { modes: vec![Mode { frequency_hz: f, damping: zeta }] }.lti().unwrap()
 }
 
-fn first_order(tau: f64) -> LtiBlock {
-    LtiBlock { poles: vec![(-1.0 / tau, 0.0)], residues: vec![(1.0 / tau, 0.0)], direct: 0.0 }
+/// `1/(1 + s τ)`: a normalized creep element of amplitude 1.
+fn first_order(tau: f64) -> Lti {
+    CreepParams { taus_s: vec![tau], amplitudes: vec![1.0], normalized: true }.lti().unwrap()
+}
+
+/// `1 + 0.05 (1/(1 + s/20) − 1)`: creep with a direct term and a slow pole.
+fn creep() -> Lti {
+    CreepParams { taus_s: vec![0.05], amplitudes: vec![0.05], normalized: true }.lti().unwrap()
+}
+
+fn cascade(blocks: &[Lti], dt: f64) -> Filter {
+    Filter::cascade(blocks, dt, Discretization::Foh)
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
@@ -26,9 +35,8 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 fn adjoint_of_the_cascade_is_exact() {
     let mut rng = Rng::new(3);
     // Creep-like block (direct term plus a slow pole), a mode and a fast low-pass.
-    let creep = LtiBlock { poles: vec![(-20.0, 0.0)], residues: vec![(-0.05 * 20.0, 0.0)], direct: 1.0 };
-    let blocks = [creep, mode(700.0, 0.01), first_order(1.0 / (2.0 * std::f64::consts::PI * 3000.0))];
-    let mut l = Cascade::new(&blocks, 2e-5).unwrap();
+    let blocks = [creep(), mode(700.0, 0.01), first_order(1.0 / (2.0 * std::f64::consts::PI * 3000.0))];
+    let mut l = cascade(&blocks, 2e-5);
     let n = 5000;
     let x: Vec<f64> = (0..n).map(|_| rng.range(-1.0, 1.0)).collect();
     let w: Vec<f64> = (0..n).map(|_| rng.range(-1.0, 1.0)).collect();
@@ -44,7 +52,7 @@ fn first_order_block_is_exact_for_a_ramp_from_rest() {
     // 1/(1 + s tau) driven by x(t) = t from rest: y(t) = t − tau (1 − e^{−t/tau}); the
     // hold is first order, so a ramp is reproduced exactly.
     let (tau, dt) = (3e-3, 1e-4);
-    let mut l = Cascade::new(&[first_order(tau)], dt).unwrap();
+    let mut l = cascade(&[first_order(tau)], dt);
     let n = 400;
     let x: Vec<f64> = (0..n).map(|k| k as f64 * dt).collect();
     let mut y = vec![0.0; n];
@@ -58,7 +66,7 @@ fn first_order_block_is_exact_for_a_ramp_from_rest() {
 
 #[test]
 fn mode_block_starts_at_rest_and_has_unit_dc_gain() {
-    let mut l = Cascade::new(&[mode(500.0, 0.05)], 1e-5).unwrap();
+    let mut l = cascade(&[mode(500.0, 0.05)], 1e-5);
     let x = vec![2.5; 20_000];
     let mut y = vec![0.0; x.len()];
     l.apply(&x, &mut y);
@@ -76,7 +84,7 @@ fn fit_behind_recovers_masses_through_a_lightly_damped_mode() {
     let dt = 1e-4;
     let blocks = [mode(300.0, 0.02)];
     let mut z = vec![0.0; u.len()];
-    Cascade::new(&blocks, dt).unwrap().apply(&h, &mut z);
+    cascade(&blocks, dt).apply(&h, &mut z);
     let opts = BehindOptions { n_h, u_range: (-1.0, 2.0), dt, tol: 1e-12, max_iter: 500 };
     let (m, rep) = fit_behind(&u, &z, None, &blocks, &opts).unwrap();
     let span = z.iter().fold(0.0f64, |a, v| a.max(v.abs()));
@@ -116,9 +124,8 @@ fn fit_behind_without_blocks_is_the_plain_fit() {
 fn fit_behind_rejects_bad_input_by_name() {
     let u = vec![0.0, 1.0, 0.5, 0.8];
     let opts = BehindOptions { n_h: 2, u_range: (0.0, 1.0), dt: 1e-3, tol: 1e-8, max_iter: 10 };
-    let unstable = LtiBlock { poles: vec![(10.0, 0.0)], residues: vec![(1.0, 0.0)], direct: 0.0 };
-    let e = fit_behind(&u, &u, None, &[unstable], &opts).unwrap_err().to_string();
-    assert!(e.starts_with("poles:") && e.contains("unstable"), "{e}");
+    let unstable = preisach_core::blocks::Section::new(0.0, [(C::new(10.0, 0.0), C::new(1.0, 0.0))]);
+    assert!(unstable.unwrap_err().to_string().contains("is not stable"));
     let e = fit_behind(&u, &u[..3], None, &[], &opts).unwrap_err().to_string();
     assert!(e.starts_with("z:") && e.contains("length"), "{e}");
     let e = fit_behind(&u, &u, Some(&[1.0, -1.0, 1.0, 1.0]), &[], &opts).unwrap_err().to_string();
@@ -131,13 +138,16 @@ fn fit_behind_rejects_bad_input_by_name() {
 #[test]
 fn fused_cascade_equals_the_blocks_one_after_the_other() {
     let mut rng = Rng::new(9);
-    let creep = LtiBlock { poles: vec![(-20.0, 0.0)], residues: vec![(-0.05 * 20.0, 0.0)], direct: 1.0 };
-    let blocks = [creep, mode(700.0, 0.01), mode(2300.0, 0.05), first_order(1e-4)];
-    let mut l = Cascade::new(&blocks, 2e-5).unwrap();
+    let blocks = [creep(), mode(700.0, 0.01), mode(2300.0, 0.05), first_order(1e-4)];
+    let mut l = cascade(&blocks, 2e-5);
     let x: Vec<f64> = (0..3000).map(|_| rng.range(-1.0, 1.0)).collect();
-    let (mut a, mut b) = (vec![0.0; x.len()], vec![0.0; x.len()]);
+    let (mut a, mut b) = (vec![0.0; x.len()], x.clone());
     l.apply(&x, &mut a);
-    l.apply_blockwise(&x, &mut b);
+    // The blocks one after the other, each on its own.
+    for blk in &blocks {
+        let input = b.clone();
+        cascade(std::slice::from_ref(blk), 2e-5).apply(&input, &mut b);
+    }
     for (p, q) in a.iter().zip(&b) {
         assert!((p - q).abs() <= 1e-12 * (1.0 + q.abs()), "{p} vs {q}");
     }

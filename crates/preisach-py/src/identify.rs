@@ -7,15 +7,15 @@ use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1};
 use std::sync::Mutex;
 
 use numpy::{PyReadonlyArray2, PyUntypedArrayMethods};
-use preisach_core::identify::filtered::{
-    fit_behind as core_fit_behind, Behind as CoreBehind, BehindOptions, Cascade, Lti, LtiBlock, Terms,
-};
+use preisach_core::blocks::{Discretization, Filter};
+use preisach_core::identify::filtered::{fit_behind as core_fit_behind, Behind as CoreBehind, BehindOptions, Terms};
 use preisach_core::identify::{build_rows, fit as core_fit, FitOptions, Solver};
 use preisach_core::Grid;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
+use crate::sim::Chain;
 use crate::{guard, slice, to_py, Model};
 
 /// Fit a model; returns (Model, report dict).
@@ -100,38 +100,10 @@ fn regression_rows<'py>(
     })
 }
 
-/// A linear block as partial fractions: (poles, residues, direct), each pole and residue
-/// a (re, im) pair; a complex pole stands for its conjugate pair.
-type BlockArg = (Vec<(f64, f64)>, Vec<(f64, f64)>, f64);
-
-/// Output of one linear block (partial fractions) for input `x` sampled every `dt`
-/// seconds, the input linear between samples, starting at rest: `preisach.chain.lti`.
+/// Fit the interpolated model's masses behind a chain of linear blocks (the diagnoser's
+/// augmented chains); returns (Model, report dict).
 #[pyfunction]
-#[pyo3(signature = (x, dt, poles, residues, direct=0.0))]
-fn lti<'py>(
-    py: Python<'py>,
-    x: PyReadonlyArray1<'py, f64>,
-    dt: f64,
-    poles: Vec<(f64, f64)>,
-    residues: Vec<(f64, f64)>,
-    direct: f64,
-) -> PyResult<Bound<'py, PyArray1<f64>>> {
-    guard(|| {
-        let x = slice("x", &x)?;
-        let block = Lti::new(&LtiBlock { poles, residues, direct }, dt).map_err(to_py)?;
-        let y = py.detach(|| {
-            let mut y = vec![0.0; x.len()];
-            block.apply(x, &mut y);
-            y
-        });
-        Ok(y.into_pyarray(py))
-    })
-}
-
-/// Fit the interpolated model's masses behind a cascade of linear blocks (the
-/// diagnoser's augmented chains); returns (Model, report dict).
-#[pyfunction]
-#[pyo3(signature = (u, z, n_h, u_range, dt, blocks, weights=None, tol=1e-6, max_iter=200))]
+#[pyo3(signature = (u, z, n_h, u_range, dt, chain, weights=None, tol=1e-6, max_iter=200))]
 #[allow(clippy::too_many_arguments)]
 fn fit_behind<'py>(
     py: Python<'py>,
@@ -140,7 +112,7 @@ fn fit_behind<'py>(
     n_h: i64,
     u_range: (f64, f64),
     dt: f64,
-    blocks: Vec<BlockArg>,
+    chain: PyRef<'py, Chain>,
     weights: Option<PyReadonlyArray1<'py, f64>>,
     tol: f64,
     max_iter: usize,
@@ -154,8 +126,7 @@ fn fit_behind<'py>(
             Some(w) => Some(slice("weights", w)?),
             None => None,
         };
-        let blocks: Vec<LtiBlock> =
-            blocks.into_iter().map(|(poles, residues, direct)| LtiBlock { poles, residues, direct }).collect();
+        let blocks = chain.desc().ltis().map_err(to_py)?;
         let opts = BehindOptions { n_h: n_h as usize, u_range, dt, tol, max_iter };
         let (model, rep) = py.detach(|| core_fit_behind(u, z, w, &blocks, &opts)).map_err(to_py)?;
         let d = PyDict::new(py);
@@ -215,18 +186,18 @@ impl Behind {
         self.inner.lock().unwrap_or_else(|e| e.into_inner()).n_samples()
     }
 
-    /// Unconstrained optimum of the chain fit (and with ``nnls`` the masses >= 0):
-    /// a dict with rmse, iterations, residual, extra (coefficients of pre then post
-    /// columns) and, with ``nnls``, model, rmse_nnls, extra_nnls. ``delay`` (in input
-    /// samples) delays the hysteresis output before the averaging.
-    #[pyo3(signature = (z, dt, blocks, weights=None, pre=None, post=None, tol=1e-4, max_iter=300, warm=true, nnls=false, delay=0.0))]
+    /// Unconstrained optimum of the fit behind ``chain`` (its linear blocks; its delay
+    /// delays the hysteresis output before the averaging), and with ``nnls`` the masses
+    /// >= 0: a dict with rmse, iterations, residual, extra (coefficients of pre then post
+    /// columns) and, with ``nnls``, model, rmse_nnls, extra_nnls.
+    #[pyo3(signature = (z, dt, chain, weights=None, pre=None, post=None, tol=1e-4, max_iter=300, warm=true, nnls=false))]
     #[allow(clippy::too_many_arguments)]
     fn solve<'py>(
         &self,
         py: Python<'py>,
         z: PyReadonlyArray1<'py, f64>,
         dt: f64,
-        blocks: Vec<BlockArg>,
+        chain: PyRef<'py, Chain>,
         weights: Option<PyReadonlyArray1<'py, f64>>,
         pre: Option<PyReadonlyArray2<'py, f64>>,
         post: Option<PyReadonlyArray2<'py, f64>>,
@@ -234,7 +205,6 @@ impl Behind {
         max_iter: usize,
         warm: bool,
         nnls: bool,
-        delay: f64,
     ) -> PyResult<Bound<'py, PyDict>> {
         guard(|| {
             let z = slice("z", &z)?;
@@ -243,12 +213,18 @@ impl Behind {
                 None => None,
             };
             let (pre_rows, post_rows) = (rows_of("pre", &pre)?, rows_of("post", &post)?);
-            let blocks: Vec<LtiBlock> =
-                blocks.into_iter().map(|(poles, residues, direct)| LtiBlock { poles, residues, direct }).collect();
+            let blocks = chain.desc().ltis().map_err(to_py)?;
+            let stride = self.inner.lock().unwrap_or_else(|e| e.into_inner()).stride();
+            // The chain's delay in input samples (the fit's samples are windows of `stride`).
+            let delay = blocks.iter().map(|b| b.delay_s).sum::<f64>() / dt * stride as f64;
             let terms = Terms { omega: w, pre: &pre_rows, post: &post_rows, delay };
             let res = py
                 .detach(|| {
-                    let mut lti = Cascade::new(&blocks, dt)?;
+                    preisach_core::error::check_scalar("dt", dt)?;
+                    if dt <= 0.0 {
+                        return Err(preisach_core::PreisachError::invalid("dt", format!("must be > 0, got {dt}")));
+                    }
+                    let mut lti = Filter::cascade(&blocks, dt, Discretization::Foh);
                     let mut b = self.inner.lock().unwrap_or_else(|e| e.into_inner());
                     let sol = b.solve(z, &mut lti, &terms, tol, max_iter, warm)?;
                     let proj = if nnls { Some(b.project(&sol, z, &mut lti, &terms)?) } else { None };
@@ -275,7 +251,6 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Behind>()?;
     m.add_function(wrap_pyfunction!(fit, m)?)?;
     m.add_function(wrap_pyfunction!(fit_behind, m)?)?;
-    m.add_function(wrap_pyfunction!(lti, m)?)?;
     m.add_function(wrap_pyfunction!(regression_rows, m)?)?;
     Ok(())
 }

@@ -28,8 +28,8 @@ from typing import Any, Optional, Sequence, Union
 
 import numpy as np
 
-from preisach.chain import Chain, rate_term, sample_period
-from preisach.diagnose.effects import CANDIDATES, FitState, Record, export_state, rmse
+from preisach.chain import Chain, load, sample_period
+from preisach.diagnose.effects import CANDIDATES, FitState, Record, export_state, rate_branch, rmse
 from preisach.diagnose.search import CREEP_TAU_MIN, Effects, Fitter, Trials, calibrate_slow
 from preisach.diagnose.report import GapReport, evidence_text
 from preisach.diagnose.where import localize, noise_floor, signatures
@@ -80,6 +80,23 @@ def _load(x: Any, name: str) -> Record:
     return Record(name, t, u, y, dt)
 
 
+def _refittable(b: Union[PreisachModel, Chain]) -> Optional[tuple[PreisachModel, dict[str, dict[str, Any]]]]:
+    """A baseline's model and effects when it is an identified model followed by effects
+    the search knows (else None: it can only be the "before")."""
+    if isinstance(b, PreisachModel):
+        return b, {}
+    model = b.model
+    if model is None or b.kinds()[0] != "hysteresis" or b.initial_input is not None:
+        return None
+    try:
+        effects = b.effects
+    except ValueError:
+        return None
+    if any(k not in CANDIDATES or "modes" in p for k, p in effects.items()):
+        return None
+    return model, {k: dict(v) for k, v in effects.items()}
+
+
 def _reversals(u: np.ndarray) -> int:
     d = np.diff(u)
     s = np.sign(d[d != 0])
@@ -92,7 +109,7 @@ def _say(progress: bool, msg: str) -> None:
 
 
 def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
-             baseline: Optional[Union[str, Path, Chain]] = None,
+             baseline: Optional[Union[str, Path, Chain, PreisachModel]] = None,
              candidates: Sequence[str] = CANDIDATES + ("discretization",), min_shrink: float = 0.10,
              fit_rate_hz: float = 25e3, progress: bool = True, workers: Optional[int] = None,
              search_rate_hz: float = 12.5e3) -> GapReport:
@@ -106,8 +123,10 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
         Score every chain; never used to fit. Any sample rate.
     n_h : int
         Discretization level of the baseline.
-    baseline : chain file or :class:`~preisach.chain.Chain`, optional
-        A chain that already models some effects; candidates are added on top of it.
+    baseline : model, chain or stage (a file or an object), optional
+        A model, or a model followed by effects, is refitted with its effects and the
+        candidates are added on top of it. Any other chain (a simulated stage) is scored
+        as the "before" only; the search then starts from a model fitted on ``train``.
     candidates : effect names to try.
     min_shrink : float
         An effect is detected when adding it shrinks the holdout RMSE of the current
@@ -139,8 +158,9 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
 
 
 def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
-              baseline: Optional[Union[str, Path, Chain]], candidates: Sequence[str], min_shrink: float,
-              fit_rate_hz: float, progress: bool, search_rate_hz: float, trials: Trials) -> GapReport:
+              baseline: Optional[Union[str, Path, Chain, PreisachModel]], candidates: Sequence[str],
+              min_shrink: float, fit_rate_hz: float, progress: bool, search_rate_hz: float,
+              trials: Trials) -> GapReport:
     t_start = time.perf_counter()
 
     def say(msg: str) -> None:
@@ -160,24 +180,30 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
         raise ValueError(f"{tr.name}: the input has no reversals (a monotone input cannot identify hysteresis)")
     say(f"baseline fit on {tr.name} ({tr.u.size} samples, n_h={n_h})")
 
-    # The baseline, exactly as `preisach identify` makes it (or the given chain).
-
+    # The baseline, exactly as `preisach identify` makes it, or the given one: a model, or
+    # a model followed by effects, is refitted with its effects; any other chain (a
+    # simulated stage) is the "before" only, and the search starts from a fitted model.
     base_effects: dict[str, dict[str, Any]] = {}
+    given: Optional[dict[str, Any]] = None
+    bch: Optional[Union[PreisachModel, Chain]] = None
+    refit = None
     if baseline is not None:
-        bch = baseline if isinstance(baseline, Chain) else Chain.load(baseline)
-        base_model = bch.model
-        base_effects = {k: dict(v) for k, v in bch.effects.items()}
+        bch = baseline if isinstance(baseline, (Chain, PreisachModel)) else load(baseline)
+        refit = _refittable(bch)
+        kinds = ["hysteresis"] if isinstance(bch, PreisachModel) else bch.kinds()
+        given = {"blocks": kinds, "refitted": refit is not None}
+    if refit is not None:
+        base_model, base_effects = refit
         n_h = base_model.n_h
-
-        def base_pred(r: Record) -> np.ndarray:
-            return bch.predict(r.t, r.u)
     else:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             base_model = PreisachModel.fit(tr.u, tr.y, n_h)
 
-        def base_pred(r: Record) -> np.ndarray:
-            return base_model.predict(r.u)
+    def base_pred(r: Record) -> np.ndarray:
+        if isinstance(bch, Chain):
+            return bch.predict(r.t, r.u)
+        return (bch or base_model).predict(r.u)
 
     recs = [tr] + hos
     base_res = {r.name: r.y - base_pred(r) for r in recs}
@@ -275,7 +301,7 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
         if name == "rate":
             # A rate-dependent loop worth the name changes the output by a visible part of
             # its span; a branch of a few 1e-4 of it corrects the timing of other effects.
-            rt = rate_term(p, tr.u, tr.dt)
+            rt = rate_branch(p, tr.t, tr.u)
             return rmse(rt) < 2e-3 * (float(np.ptp(tr.y)) or 1.0)
         return False
 
@@ -443,6 +469,7 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
     # the user checks it on come later still).
     final = export_state(calibrate_slow(cur, [(r, slice(None)) for r in recs]))
     aug = Chain(final.model, final.effects)
+    aug.sample_rate_hz = 1.0 / tr.dt  # the training record's: for per-sample runs (run_loop)
     timing = final.effects.get("delay", {}).get("delay_s", 0.0) if "delay" not in accepted else 0.0
     effects_out = []
     for c in accepted + sorted((c for c in tried if c not in accepted), key=lambda c: -tried[c]["score"]):
@@ -467,7 +494,7 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
         noise_floor=floor,
         baseline={"n_h": n_h, "rmse": base_rmse, "holdout_rmse": hold_before,
                   "reference_interpolated_holdout_rmse": ref_score,
-                  "effects": list(base_effects)},
+                  "effects": list(base_effects), **({"given": given} if given is not None else {})},
         where=where,
         split={"fit": f"{tr.name} (candidates: averages of {sstride} samples, {fitter.y.size} values; "
                       f"the chain found: averages of {stride}, {fine.y.size} values); drift and creep parameters "
@@ -497,7 +524,7 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
 
 def run_cli(args: argparse.Namespace) -> int:
     """``preisach diagnose TRAIN --holdout H ... --json REPORT.json [--save-model AUG.json]
-    [--plots DIR] [--n-h N] [--baseline CHAIN.json]``. Prints a short summary; user
+    [--plots DIR] [--n-h N] [--baseline MODEL|CHAIN|STAGE.json]``. Prints a short summary; user
     errors are raised as ValueError (the CLI prints them without a traceback)."""
     hold = list(getattr(args, "holdout", None) or [])
     if not hold:

@@ -12,7 +12,7 @@ from typing import Any, Callable, Optional
 import numpy as np
 from numpy.typing import NDArray
 
-from preisach.chain import apply_effects
+from preisach.chain import Chain
 from preisach.model import PreisachModel
 
 #: Candidate effects the diagnoser tries (``discretization`` is handled separately).
@@ -39,8 +39,15 @@ class FitState:
     train_rmse: float = float("nan")
 
     def predict(self, rec: Record) -> NDArray[np.float64]:
-        h = self.model.predict(rec.u)
-        return apply_effects(self.effects, rec.t, rec.u, h, rec.dt)
+        return Chain(self.model, self.effects).predict(rec.t, rec.u)
+
+
+def rate_branch(p: dict[str, Any], t: NDArray[np.float64], u: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The rate branch ``gain_s s / (1 + s tau_s)`` of input ``u`` alone (behind a
+    hysteresis block without mass)."""
+    lo, hi = float(np.min(u)), float(np.max(u))
+    zero = PreisachModel(np.zeros((1, 1)), (lo - 1.0, hi + 1.0))
+    return Chain(zero, {"rate": p}).predict(t, u)
 
 
 def rmse(a: NDArray[np.float64]) -> float:
@@ -169,7 +176,7 @@ def export_state(st: FitState) -> FitState:
     eff = {k: dict(v) for k, v in st.effects.items()}
     model = st.model
     cr = eff.get("creep")
-    if cr is not None and cr.pop("_norm", False):
+    if cr is not None and cr.pop("normalized", False):
         S = float(sum(cr["amplitudes"]))
         if S < 0.95:
             cr["amplitudes"] = [c / (1 - S) for c in cr["amplitudes"]]

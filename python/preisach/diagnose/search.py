@@ -28,8 +28,9 @@ from typing import Any, Callable, Iterator, Optional, Sequence, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from preisach.chain import apply_effects, delay_signal, lti, partial_fractions, rate_term
-from preisach.diagnose.effects import FitState, Record, _grid_then_parabola, _mode_guess, _parabolic_search, rmse
+from preisach.chain import Chain
+from preisach.diagnose.effects import (FitState, Record, _grid_then_parabola, _mode_guess, _parabolic_search,
+                                       rate_branch, rmse)
 from preisach.model import PreisachModel
 
 Effects = dict[str, dict[str, Any]]
@@ -221,7 +222,7 @@ class Fitter:
     def _delayed(self, x: NDArray[np.float64], eff: Effects) -> NDArray[np.float64]:
         """A full-rate signal delayed like the chain delays its output, then averaged."""
         d = eff.get("delay", {}).get("delay_s", 0.0)
-        return self.coarse(delay_signal(x, d, self.rec.dt) if d > 0 else x)
+        return self.coarse(Chain(None, {"delay": {"delay_s": d}}).predict(self.rec.t, x) if d > 0 else x)
 
     def hysteresis(self, model: PreisachModel, eff: Effects) -> NDArray[np.float64]:
         """The model's output on the training input, delayed like the chain, averaged."""
@@ -231,11 +232,9 @@ class Fitter:
         """The chain's output on the averaged training record (a delay commutes with the
         linear blocks, and the average with all of them)."""
         eff = st.effects
-        x = st.model.predict(self._u)
-        if "rate" in eff:
-            x = x + rate_term(eff["rate"], self._u, self.rec.dt)
+        x = Chain(st.model, {k: v for k, v in eff.items() if k == "rate"}).predict(self.rec.t, self._u)
         rest = {k: v for k, v in eff.items() if k not in ("rate", "delay")}
-        return apply_effects(rest, self.t, self.t, self._delayed(x, eff), self.dt)
+        return _run(rest, self.t, self._delayed(x, eff))
 
     # -- the profiled objective -----------------------------------------------------
     def _solve(self, pb: dict[str, Any], nnls: bool = False) -> dict[str, Any]:
@@ -244,16 +243,12 @@ class Fitter:
         sess = getattr(self._local, "session", None)
         if sess is None:
             sess = self._local.session = self._behind(self._u, self.n_h, self.u_range, self.stride)
-        return sess.solve(pb["z"], self.dt, pb["blocks"], pb["w"], pb["pre"], pb["post"], self.tol,
-                          nnls=nnls, delay=pb["delay"])
+        return sess.solve(pb["z"], self.dt, pb["chain"]._core, pb["w"], pb["pre"], pb["post"], self.tol,
+                          nnls=nnls)
 
     def _problem(self, eff: Effects) -> dict[str, Any]:
         t, y = self.t, self.y
-        blocks = []
-        for k in ("creep", "vibration", "lowpass"):
-            if k in eff:
-                poles, res, direct = partial_fractions(k, eff[k])
-                blocks.append(([(p.real, p.imag) for p in poles], [(q.real, q.imag) for q in res], float(direct)))
+        chain = Chain(None, {k: eff[k] for k in ("creep", "vibration", "lowpass", "delay") if k in eff})
         z, w, post, pre, q = y, None, None, None, None
         if "drift" in eff:
             q = 1 + eff["drift"]["gain_per_s"] * t
@@ -262,11 +257,9 @@ class Fitter:
             # y = (1 + g t)(chain + c) + o'' t: the constant stays in the model's offset.
             post = np.ascontiguousarray((t / q)[None, :])
         if "rate" in eff:
-            rt = rate_term({"gain_s": 1.0, "tau_s": eff["rate"]["tau_s"]}, self._u, self.rec.dt)
+            rt = rate_branch({"gain_s": 1.0, "tau_s": eff["rate"]["tau_s"]}, self.rec.t, self._u)
             pre = np.ascontiguousarray(self._delayed(rt, eff)[None, :])
-        d = eff.get("delay", {}).get("delay_s", 0.0) / self.rec.dt
-        return {"z": np.ascontiguousarray(z), "blocks": blocks, "w": w, "pre": pre, "post": post, "q": q,
-                "delay": float(max(d, 0.0))}
+        return {"z": np.ascontiguousarray(z), "chain": chain, "w": w, "pre": pre, "post": post, "q": q}
 
     def _linear(self, eff: Effects, extra: list[float]) -> Effects:
         e = {k: dict(p) for k, p in eff.items()}
@@ -426,7 +419,7 @@ class Fitter:
             eff = self.mode_band(eff, h)
         elif name == "creep":
             tau, c = (self.slow or self).creep_init(eff)
-            eff["creep"] = {"taus_s": [tau], "amplitudes": [c], "_norm": True}
+            eff["creep"] = {"taus_s": [tau], "amplitudes": [c], "normalized": True}
         elif name == "drift":
             gmax = min(0.1, 0.5 / max(T, 1e-9))
             f, fm = (self.slow or self).along(
@@ -465,7 +458,7 @@ class Fitter:
     def creep_amp(self, eff: Effects, tau: float, c0: float = 0.03, refine: int = 2) -> tuple[float, float]:
         """The best creep amplitude for time constant ``tau`` (parabolic steps; amplitude
         0 is the chain without creep, whose error is known)."""
-        f, fm = self.along(lambda c: dict(eff, creep={"taus_s": [float(tau)], "amplitudes": [c], "_norm": True}))
+        f, fm = self.along(lambda c: dict(eff, creep={"taus_s": [float(tau)], "amplitudes": [c], "normalized": True}))
         c0 = min(max(c0, 0.01), 0.5 * CREEP_AMP_MAX)
         a, b = c0 / 3, c0
         known = {0.0: self.J({k: v for k, v in eff.items() if k != "creep"})}
@@ -500,7 +493,7 @@ class Fitter:
         lo = math.log(CREEP_TAU_MIN)
         pts = sorted({min(max(x, lo), hi) for x in lt_pts})
         lt, fx = _parabolic_search(f, pts, lo, hi, refine=refine, expand=3)
-        e = dict(eff, creep={"taus_s": [float(math.exp(lt))], "amplitudes": [amps[lt]], "_norm": True})
+        e = dict(eff, creep={"taus_s": [float(math.exp(lt))], "amplitudes": [amps[lt]], "normalized": True})
         return e, fx
 
     def creep_init(self, eff: Effects) -> tuple[float, float]:
@@ -516,7 +509,7 @@ class Fitter:
         best = min(trials)[0]
         fx, c, tau = min((t for t in trials if t[0] <= best * (1 + 2e-4)), key=lambda t: t[1])
         step = math.log(trials[1][2] / trials[0][2]) / 2
-        e, _ = self.line_creep(dict(eff, creep={"taus_s": [tau], "amplitudes": [c], "_norm": True}),
+        e, _ = self.line_creep(dict(eff, creep={"taus_s": [tau], "amplitudes": [c], "normalized": True}),
                                [math.log(tau) - step, math.log(tau), math.log(tau) + step])
         return float(e["creep"]["taus_s"][0]), max(float(e["creep"]["amplitudes"][0]), 1e-4)
 
@@ -538,12 +531,11 @@ class Fitter:
         if h is None:
             h = self.hysteresis(self.state(others).model, {})
         if "rate" in others:
-            h = h + self.coarse(rate_term(others["rate"], self._u, self.rec.dt))
+            h = h + self.coarse(rate_branch(others["rate"], self.rec.t, self._u))
         lin = {k: v for k, v in others.items() if k not in ("rate", "delay")}
         n = y.size
         f = np.fft.rfftfreq(n, dt)
         ramp = np.linspace(0.0, 1.0, n)
-        om = 2 * np.pi * f
         nyq = 0.5 / dt
 
         def spec(x: NDArray[np.float64]) -> NDArray[np.complex128]:
@@ -553,10 +545,10 @@ class Fitter:
         # The chain as it is (its delay a phase factor), for the peaks and the variant
         # that keeps its lag.
         d0 = others.get("delay", {}).get("delay_s", 0.0)
-        base_keep = apply_effects(lin, t, t, h, dt)
-        B_keep = spec(base_keep) * np.exp(-1j * om * d0)
+        base_keep = _run(lin, t, h)
+        B_keep = np.multiply(spec(base_keep), _response({"delay": {"delay_s": d0}}, f))
         # Without its delay and low-pass, for the variant whose lag is fitted in the band.
-        B_free = spec(apply_effects({k: v for k, v in lin.items() if k != "lowpass"}, t, t, h, dt))
+        B_free = spec(_run({k: v for k, v in lin.items() if k != "lowpass"}, t, h))
         dgrid = np.arange(0.0, 1.5e-3, 2e-5)
         cgrid = np.geomspace(100.0, 2e4, 24)
 
@@ -572,19 +564,18 @@ class Fitter:
                 if m not in masks:
                     idx = np.flatnonzero((f > m[0]) & (f < m[1]))
                     masks[m] = idx[::max(1, -(-idx.size // 600))]
-                    w = om[masks[m]]
                     if nuisance:
-                        jw = 1j * np.outer(1 / (2 * np.pi * cgrid), w)  # j w / wc
-                        phc[m] = np.vstack([np.exp(-1j * np.outer(dgrid, w)), 1 / (1 + jw),
-                                            1 / (1 + np.sqrt(2.0) * jw + jw * jw)])
+                        fm = f[masks[m]]
+                        phc[m] = np.vstack([_response({"delay": {"delay_s": d}}, fm) for d in dgrid]
+                                           + [_response({"lowpass": {"cutoff_hz": c, "order": o}}, fm)
+                                              for o in (1, 2) for c in cgrid])
                     else:
-                        phc[m] = np.ones((1, w.size), dtype=np.complex128)
+                        phc[m] = np.ones((1, masks[m].size), dtype=np.complex128)
                 mk = masks[m]
                 if p is None:
                     P = B[mk]  # no mode: the band error to compare with
                 else:
-                    w0, zt = 2 * np.pi * p["frequency_hz"], p["damping"]
-                    P = w0 * w0 / (w0 * w0 - om[mk] ** 2 + 2j * zt * w0 * om[mk]) * B[mk]
+                    P = _response({"vibration": p}, f[mk]) * B[mk]
                 errs = np.sum(np.abs(P[None, :] * phc[m] - Y[mk][None, :]) ** 2, axis=1)
                 k = int(np.argmin(errs))
                 if nuisance and k < dgrid.size:
@@ -653,12 +644,12 @@ def normalized_creep(st: FitState) -> FitState:
     - x)``): a chain file's creep (``y = x + c LP[x]``, DC gain ``1 + S``) is the same
     with the model scaled by ``1 + S`` and the amplitudes divided by it."""
     cr = st.effects.get("creep")
-    if cr is None or cr.get("_norm"):
+    if cr is None or cr.get("normalized"):
         return st
     S = float(sum(cr["amplitudes"]))
     eff = {k: dict(v) for k, v in st.effects.items()}
     eff["creep"] = {"taus_s": list(cr["taus_s"]), "amplitudes": [c / (1 + S) for c in cr["amplitudes"]],
-                    "_norm": True}
+                    "normalized": True}
     if "rate" in eff:
         eff["rate"]["gain_s"] = float(eff["rate"]["gain_s"] * (1 + S))
     m = st.model
@@ -737,7 +728,7 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
 
         def sse_at(lt: float) -> float:
             tk = math.exp(lt)
-            resp = [_lp(xf, tk, rec.dt) - xf for xf, (rec, _) in zip(full_x, data)]
+            resp = [_lp(xf, tk, rec.t) - xf for xf, (rec, _) in zip(full_x, data)]
             col = averaged(resp)
             # With a drift, its gain also scales the creep (the t k column).
             tcol = [averaged([kf * tf for kf, tf in zip(resp, times)])] if drift else []
@@ -777,10 +768,21 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
                         "offset_per_s": float(coef[1])}
     if tau is not None:
         c = min(max(float(coef[-1]), 0.0), CREEP_AMP_MAX)
-        eff["creep"] = {"taus_s": [float(tau)], "amplitudes": [c], "_norm": True}
+        eff["creep"] = {"taus_s": [float(tau)], "amplitudes": [c], "normalized": True}
     return FitState(st.model, eff, st.train_rmse)
 
 
-def _lp(x: NDArray[np.float64], tau: float, dt: float) -> NDArray[np.float64]:
-    """First-order low-pass ``1 / (1 + s tau)`` (DC gain 1), at rest at the start."""
-    return lti(x, dt, [complex(-1 / tau)], [complex(1 / tau)])
+def _lp(x: NDArray[np.float64], tau: float, t: NDArray[np.float64]) -> NDArray[np.float64]:
+    """First-order low-pass ``1 / (1 + s tau)`` (DC gain 1), at rest at the start: a
+    normalized creep element of amplitude 1."""
+    return _run({"creep": {"taus_s": [tau], "amplitudes": [1.0], "normalized": True}}, t, x)
+
+
+def _run(effects: Effects, t: NDArray[np.float64], x: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The effects (no hysteresis, no rate) applied to ``x`` sampled at ``t``."""
+    return Chain(None, effects).predict(t, x) if effects else x
+
+
+def _response(effects: Effects, f_hz: Any) -> NDArray[np.complex128]:
+    """The analog frequency response of linear effects at ``f_hz``."""
+    return Chain(None, effects).response(f_hz)

@@ -35,7 +35,7 @@ impl Default for AmplifierParams {
 /// slew-limited.
 #[derive(Debug, Clone)]
 pub struct Amplifier {
-    params: AmplifierParams,
+    gain: f64,
     lo: f64,
     hi: f64,
     max_step: f64,
@@ -45,7 +45,7 @@ pub struct Amplifier {
 }
 
 impl Amplifier {
-    pub fn new(params: AmplifierParams, sample_rate_hz: f64) -> Result<Self> {
+    pub fn new(params: &AmplifierParams, sample_rate_hz: f64) -> Result<Self> {
         finite("gain", params.gain)?;
         let (lo, hi) = match params.saturation {
             Some([lo, hi]) => {
@@ -63,23 +63,25 @@ impl Amplifier {
             None => f64::INFINITY,
         };
         let last = 0.0f64.clamp(lo, hi);
-        Ok(Amplifier { params, lo, hi, max_step, last, settled: false })
-    }
-
-    pub fn params(&self) -> &AmplifierParams {
-        &self.params
+        Ok(Amplifier { gain: params.gain, lo, hi, max_step, last, settled: false })
     }
 
     #[inline]
     pub fn step(&mut self, x: f64) -> f64 {
-        let v = (self.params.gain * x).clamp(self.lo, self.hi);
         if !self.settled {
-            self.last = v;
-            self.settled = true;
+            return self.settle(x);
         }
+        let v = (self.gain * x).clamp(self.lo, self.hi);
         let v = self.last + (v - self.last).clamp(-self.max_step, self.max_step);
         self.last = v;
         v
+    }
+
+    /// At rest with `x`: the slew limiter at its (saturated) value.
+    pub fn settle(&mut self, x: f64) -> f64 {
+        self.last = (self.gain * x).clamp(self.lo, self.hi);
+        self.settled = true;
+        self.last
     }
 
     /// Back to rest: the next `step` starts at its own (saturated) value.

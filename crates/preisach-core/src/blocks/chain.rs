@@ -1,53 +1,79 @@
-//! A chain of blocks: the plant simulator, an identified model plus effects, or a
-//! diagnosis candidate. Serialized as versioned JSON:
+//! A chain of blocks: the plant simulator, an identified model (a chain of one
+//! hysteresis block), a model plus effects, or a diagnosis candidate. Blocks run in list
+//! order. Serialized as JSON, version 2:
 //!
 //! ```json
-//! {"version": 1, "sample_rate_hz": 100000.0, "blocks": [
-//!   {"type": "amplifier", "gain": 20.0, "saturation": [-30.0, 180.0], "slew_v_per_s": null},
-//!   {"type": "hysteresis", "source": "parametric", "lo": -30.0, "hi": 180.0, "n_h": 500, ...},
-//!   {"type": "creep", "gains": [0.01, 0.01], "time_constants_s": [0.1, 1.0]},
-//!   {"type": "vibration", "modes": [{"freq_hz": 780.0, "damping": 0.02}]},
-//!   {"type": "sensor", "gain": 0.2, "lowpass": {"cutoff_hz": 20000.0, "order": 4}, ...}
-//! ]}
+//! {"format": "preisach-chain", "version": 2, "sample_rate_hz": 100000.0,
+//!  "blocks": [
+//!   {"type": "hysteresis", "source": "identified", "u_range": [0, 10], "n_h": 2,
+//!    "weights": [[0.1, 0.2], [0.0, 0.3]], "offset": 0.1, "output": "interpolated"},
+//!   {"type": "rate", "gain_s": 1e-4, "tau_s": 1e-3},
+//!   {"type": "vibration", "modes": [{"frequency_hz": 780.0, "damping": 0.02}]}
+//!  ]}
 //! ```
 //!
-//! Block types: `amplifier`, `hysteresis`, `creep`, `vibration`, `sensor`, `lowpass`,
-//! `delay`, `noise`, `quantizer`, `drift`.
+//! `sample_rate_hz` (the stage's own rate, for per-sample runs), `initial_input` and
+//! `report` (a model's fit report, passed through) are optional. Files of version 1 (a
+//! `preisach-model`, a `preisach-chain` of a model and effects, a stage) are read too and
+//! converted. Errors name the block and the field
+//! (`blocks[2] (vibration): modes[0].damping: must be > 0, got 0`).
 //!
-//! A record starts at rest: blocks start in equilibrium with the first sample (after
-//! construction, [`Chain::reset`] and [`Chain::reset_state`]), so a constant input
-//! gives a constant output from the first sample, apart from noise and drift.
+//! The description compiles to a [`Runtime`] for one sample rate and one [`Sampling`];
+//! checks against that rate (a cutoff at or above Nyquist in a per-sample run) happen
+//! then. [`Chain::predict`] and [`Chain::simulate`] run a record `(t, u)` at the rate of
+//! its time column.
+
+use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
+use serde_json::Value;
 
 use super::amplifier::{Amplifier, AmplifierParams};
-use super::creep::{Creep, CreepParams};
-use super::drift::{Drift, DriftParams};
-use super::hysteresis::{Hysteresis, HysteresisParams};
-use super::positive;
-use super::sensor::{
-    Delay, DelayParams, Lowpass, LowpassParams, Noise, NoiseParams, Quantizer, QuantizerParams, Sensor, SensorParams,
-};
-use super::vibration::{Vibration, VibrationParams};
-use crate::error::{PreisachError, Result};
+use super::creep::CreepParams;
+use super::drift::DriftParams;
+use super::hysteresis::{Hysteresis, HysteresisCore, HysteresisParams};
+use super::lti::{Linear, Lti, Sampling, Section, C};
+use super::rate::RateParams;
+use super::sensor::{DelayParams, LowpassParams, Noise, NoiseParams, Quantizer, QuantizerParams, Sensor, SensorParams};
+use super::vibration::VibrationParams;
+use super::{below_nyquist, finite, positive, v1};
+use crate::error::{check_signal, PreisachError, Result};
 
 /// Version of the chain format written by this build.
-pub const CHAIN_VERSION: u32 = 1;
+pub const CHAIN_VERSION: u32 = 2;
+/// The `format` field of a chain file.
+pub const FORMAT: &str = "preisach-chain";
 
-/// The parameters of one block, tagged by `"type"` (the JSON form of a [`Block`]).
+/// Block type names.
+pub const BLOCK_TYPES: &[&str] = &[
+    "amplifier",
+    "hysteresis",
+    "rate",
+    "creep",
+    "vibration",
+    "lowpass",
+    "delay",
+    "sensor",
+    "drift",
+    "noise",
+    "quantizer",
+];
+
+/// The parameters of one block, tagged by `"type"` (the JSON form).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "lowercase")]
 pub enum BlockSpec {
     Amplifier(AmplifierParams),
     Hysteresis(HysteresisParams),
+    Rate(RateParams),
     Creep(CreepParams),
     Vibration(VibrationParams),
-    Sensor(SensorParams),
     Lowpass(LowpassParams),
     Delay(DelayParams),
+    Sensor(SensorParams),
+    Drift(DriftParams),
     Noise(NoiseParams),
     Quantizer(QuantizerParams),
-    Drift(DriftParams),
 }
 
 impl BlockSpec {
@@ -56,266 +82,601 @@ impl BlockSpec {
         match self {
             BlockSpec::Amplifier(_) => "amplifier",
             BlockSpec::Hysteresis(_) => "hysteresis",
+            BlockSpec::Rate(_) => "rate",
             BlockSpec::Creep(_) => "creep",
             BlockSpec::Vibration(_) => "vibration",
-            BlockSpec::Sensor(_) => "sensor",
             BlockSpec::Lowpass(_) => "lowpass",
             BlockSpec::Delay(_) => "delay",
+            BlockSpec::Sensor(_) => "sensor",
+            BlockSpec::Drift(_) => "drift",
             BlockSpec::Noise(_) => "noise",
             BlockSpec::Quantizer(_) => "quantizer",
-            BlockSpec::Drift(_) => "drift",
         }
     }
 
-    /// Validate the parameters against the sample rate and build the block.
-    pub fn build(self, sample_rate_hz: f64) -> Result<Block> {
-        let fs = sample_rate_hz;
+    /// Parse one block of a version-2 file; errors name the field (not yet the block).
+    pub fn from_value(v: Value) -> Result<Self> {
+        if let Some(t) = v.get("type").and_then(Value::as_str) {
+            if !BLOCK_TYPES.contains(&t) {
+                return Err(PreisachError::corrupt(
+                    "chain",
+                    format!("unknown block type '{t}' (known: {})", BLOCK_TYPES.join(", ")),
+                ));
+            }
+        }
+        serde_json::from_value(v).map_err(|e| PreisachError::corrupt("chain", e.to_string()))
+    }
+
+    /// The continuous description of a series block (creep, vibration, lowpass, delay,
+    /// the sensor's gain, filter and delay); `None` for the others. Validates it.
+    pub fn lti(&self) -> Option<Result<Lti>> {
+        Some(match self {
+            BlockSpec::Creep(p) => p.lti(),
+            BlockSpec::Vibration(p) => p.lti(),
+            BlockSpec::Lowpass(p) => p.lti(),
+            BlockSpec::Delay(p) => p.lti(),
+            BlockSpec::Sensor(p) => {
+                p.check().and_then(|_| Ok(Lti::series(vec![Section::gain(p.gain)?]).then(p.lti()?)))
+            }
+            _ => return None,
+        })
+    }
+
+    /// Everything that does not depend on the sample rate.
+    fn check(&self) -> Result<()> {
+        match self {
+            BlockSpec::Amplifier(p) => Amplifier::new(p, 1.0).map(|_| ()),
+            BlockSpec::Hysteresis(_) => Ok(()), // built once by the chain
+            BlockSpec::Rate(p) => p.lti().map(|_| ()),
+            BlockSpec::Drift(p) => p.check(),
+            BlockSpec::Noise(p) => p.check(),
+            BlockSpec::Quantizer(p) => Quantizer::new(p).map(|_| ()),
+            other => other.lti().map_or(Ok(()), |r| r.map(|_| ())),
+        }
+    }
+
+    /// The run-time block at `fs`; `deterministic` turns noise and quantization off.
+    fn build(
+        &self,
+        fs: f64,
+        sampling: Sampling,
+        deterministic: bool,
+        core: Option<&Arc<HysteresisCore>>,
+    ) -> Result<Block> {
+        let plain = sampling.plain();
         Ok(match self {
             BlockSpec::Amplifier(p) => Block::Amplifier(Amplifier::new(p, fs)?),
-            BlockSpec::Hysteresis(p) => Block::Hysteresis(Hysteresis::new(p, fs)?),
-            BlockSpec::Creep(p) => Block::Creep(Creep::new(p, fs)?),
-            BlockSpec::Vibration(p) => Block::Vibration(Vibration::new(p, fs)?),
-            BlockSpec::Sensor(p) => Block::Sensor(Sensor::new(p, fs)?),
-            BlockSpec::Lowpass(p) => Block::Lowpass(Lowpass::new(p, fs)?),
-            BlockSpec::Delay(p) => Block::Delay(Delay::new(p, fs)?),
-            BlockSpec::Noise(p) => Block::Noise(Noise::new(p, fs)?),
-            BlockSpec::Quantizer(p) => Block::Quantizer(Quantizer::new(p, fs)?),
-            BlockSpec::Drift(p) => Block::Drift(Drift::new(p, fs)?),
+            BlockSpec::Hysteresis(_) => {
+                Block::Hysteresis(Hysteresis::new(core.cloned().expect("a hysteresis block has its core")))
+            }
+            BlockSpec::Rate(p) => Block::Rate(Linear::new(&p.lti()?, fs, plain)?),
+            BlockSpec::Creep(p) => Block::Linear(Linear::new(&p.lti()?, fs, plain)?),
+            BlockSpec::Vibration(p) => {
+                if sampling == Sampling::Zoh {
+                    for (k, m) in p.modes.iter().enumerate() {
+                        below_nyquist(&format!("modes[{k}].frequency_hz"), m.frequency_hz, fs)?;
+                    }
+                }
+                Block::Linear(Linear::new(&p.lti()?, fs, plain)?)
+            }
+            BlockSpec::Lowpass(p) => Block::Linear(Linear::new(&p.lti()?, fs, p.discretization(sampling, fs)?)?),
+            BlockSpec::Delay(p) => Block::Linear(Linear::new(&p.lti()?, fs, plain)?),
+            BlockSpec::Sensor(p) => Block::Sensor(Sensor::new(p, fs, sampling, deterministic)?),
+            BlockSpec::Drift(p) => Block::Drift(p.clone()),
+            BlockSpec::Noise(_) | BlockSpec::Quantizer(_) if deterministic => Block::Pass,
+            BlockSpec::Noise(p) => Block::Noise(Noise::new(p)?),
+            BlockSpec::Quantizer(p) => Block::Quantizer(Quantizer::new(p)?),
         })
     }
 }
 
-/// A built block: parameters, coefficients and state.
+/// An error of block `k`, named by it.
+fn in_block(k: usize, kind: &str, e: PreisachError) -> PreisachError {
+    match e {
+        PreisachError::Invalid { name, problem } => {
+            PreisachError::Invalid { name: format!("blocks[{k}] ({kind}): {name}"), problem }
+        }
+        PreisachError::Corrupt { what, problem } => {
+            PreisachError::Corrupt { what, problem: format!("blocks[{k}] ({kind}): {problem}") }
+        }
+        other => other,
+    }
+}
+
+/// A validated chain description; see the module doc.
+#[derive(Debug, Clone)]
+pub struct Chain {
+    blocks: Vec<BlockSpec>,
+    /// Per block: the built model of a hysteresis block (shared by every run).
+    cores: Vec<Option<Arc<HysteresisCore>>>,
+    sample_rate_hz: Option<f64>,
+    initial_input: Option<f64>,
+    report: Option<Value>,
+}
+
+/// The file form (version 2).
+#[derive(Serialize)]
+struct ChainFile<'a> {
+    format: &'static str,
+    version: u32,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sample_rate_hz: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    initial_input: Option<f64>,
+    blocks: &'a [BlockSpec],
+    #[serde(skip_serializing_if = "Option::is_none")]
+    report: Option<&'a Value>,
+}
+
+/// Top-level fields of a version-2 file.
+const FIELDS: &[&str] = &["format", "version", "sample_rate_hz", "initial_input", "blocks", "report"];
+
+impl Chain {
+    /// Validate the blocks (everything that does not depend on a sample rate). Errors
+    /// name the block (`blocks[2] (vibration): modes[0].damping: must be > 0, got 0`).
+    pub fn new(blocks: Vec<BlockSpec>) -> Result<Self> {
+        let mut cores = Vec::with_capacity(blocks.len());
+        let mut hysteresis_seen = false;
+        for (k, b) in blocks.iter().enumerate() {
+            let named = |e| in_block(k, b.kind(), e);
+            b.check().map_err(named)?;
+            match b {
+                BlockSpec::Hysteresis(p) => {
+                    cores.push(Some(Arc::new(p.core().map_err(named)?)));
+                    hysteresis_seen = true;
+                }
+                BlockSpec::Rate(_) if !hysteresis_seen => {
+                    return Err(PreisachError::invalid(
+                        format!("blocks[{k}] (rate)"),
+                        "needs a hysteresis block before it (the rate term acts on the hysteresis input)",
+                    ))
+                }
+                _ => cores.push(None),
+            }
+        }
+        Ok(Chain { blocks, cores, sample_rate_hz: None, initial_input: None, report: None })
+    }
+
+    /// The stage's own sample rate (for per-sample runs), Hz.
+    pub fn with_sample_rate(mut self, fs: Option<f64>) -> Result<Self> {
+        if let Some(f) = fs {
+            positive("sample_rate_hz", f)?;
+        }
+        self.sample_rate_hz = fs;
+        Ok(self)
+    }
+
+    /// The input the stage rested at before a record (default: the record's first input).
+    pub fn with_initial_input(mut self, x: Option<f64>) -> Result<Self> {
+        if let Some(v) = x {
+            finite("initial_input", v)?;
+        }
+        self.initial_input = x;
+        Ok(self)
+    }
+
+    /// A fit report or any JSON, written with the chain.
+    pub fn with_report(mut self, report: Option<Value>) -> Self {
+        self.report = report;
+        self
+    }
+
+    pub fn blocks(&self) -> &[BlockSpec] {
+        &self.blocks
+    }
+    pub fn sample_rate_hz(&self) -> Option<f64> {
+        self.sample_rate_hz
+    }
+    pub fn initial_input(&self) -> Option<f64> {
+        self.initial_input
+    }
+    pub fn report(&self) -> Option<&Value> {
+        self.report.as_ref()
+    }
+
+    /// The built model of hysteresis block `k`.
+    pub fn hysteresis(&self, k: usize) -> Option<&HysteresisCore> {
+        self.cores.get(k).and_then(|c| c.as_deref())
+    }
+
+    /// Parse any chain, model or stage file (version 1 or 2). Malformed JSON, an unknown
+    /// field or block is `Corrupt`; a bad value `Invalid`, naming the block and field.
+    pub fn from_json(text: &str) -> Result<Self> {
+        let v: Value = serde_json::from_str(text).map_err(|e| PreisachError::corrupt("chain", e.to_string()))?;
+        Chain::from_value(v)
+    }
+
+    /// [`Chain::from_json`] on parsed JSON.
+    pub fn from_value(v: Value) -> Result<Self> {
+        let Value::Object(mut obj) = v else {
+            return Err(PreisachError::corrupt("chain", "expected a JSON object"));
+        };
+        match obj.get("format").and_then(Value::as_str) {
+            Some("preisach-model") => return v1::model(obj),
+            Some(FORMAT) => {}
+            Some(other) => {
+                return Err(PreisachError::corrupt(
+                    "chain",
+                    format!("'format' must be '{FORMAT}' or 'preisach-model', got '{other}'"),
+                ))
+            }
+            None if obj.contains_key("format") => {
+                return Err(PreisachError::corrupt("chain", "'format' must be a string"));
+            }
+            None if obj.get("version").and_then(Value::as_u64) == Some(1) => return v1::stage(obj),
+            None => {
+                return Err(PreisachError::corrupt(
+                    "chain",
+                    "missing 'format' (a version-2 chain, a preisach-model or a version-1 stage file expected)",
+                ))
+            }
+        }
+        match obj.get("version").and_then(Value::as_u64) {
+            Some(1) => return v1::chain(obj),
+            Some(2) => {}
+            _ => {
+                return Err(PreisachError::corrupt(
+                    "chain",
+                    format!("unsupported version {}, this build reads versions 1 and 2", obj["version"]),
+                ))
+            }
+        }
+        if let Some(k) = obj.keys().find(|k| !FIELDS.contains(&k.as_str())) {
+            return Err(PreisachError::corrupt("chain", format!("unknown field '{k}' (known: {})", FIELDS.join(", "))));
+        }
+        let number = |obj: &serde_json::Map<String, Value>, k: &str| -> Result<Option<f64>> {
+            match obj.get(k) {
+                None | Some(Value::Null) => Ok(None),
+                Some(x) => x
+                    .as_f64()
+                    .map(Some)
+                    .ok_or_else(|| PreisachError::corrupt("chain", format!("'{k}' must be a number, got {x}"))),
+            }
+        };
+        let fs = number(&obj, "sample_rate_hz")?;
+        let x0 = number(&obj, "initial_input")?;
+        let Some(Value::Array(blocks)) = obj.remove("blocks") else {
+            return Err(PreisachError::corrupt("chain", "'blocks' must be a list of blocks"));
+        };
+        let report = obj.remove("report").filter(|r| !r.is_null());
+        let specs = parse_blocks(blocks, BlockSpec::from_value)?;
+        Ok(Chain::new(specs)?.with_sample_rate(fs)?.with_initial_input(x0)?.with_report(report))
+    }
+
+    /// The version-2 JSON text: one block per line.
+    pub fn to_json(&self) -> String {
+        // Plain data with finite numbers: serializing cannot fail.
+        let block = |b: &BlockSpec| serde_json::to_string(b).expect("a block serializes");
+        let head = ChainFile {
+            format: FORMAT,
+            version: CHAIN_VERSION,
+            sample_rate_hz: self.sample_rate_hz,
+            initial_input: self.initial_input,
+            blocks: &[],
+            report: self.report.as_ref(),
+        };
+        let head = serde_json::to_string(&head).expect("a chain serializes");
+        let lines: Vec<String> = self.blocks.iter().map(|b| format!("  {}", block(b))).collect();
+        let blocks = if lines.is_empty() { "[]".to_string() } else { format!("[\n{}\n]", lines.join(",\n")) };
+        head.replacen("\"blocks\":[]", &format!("\"blocks\":{blocks}"), 1)
+    }
+
+    /// Compile for `sample_rate_hz`: every block sampled by `sampling` and checked
+    /// against that rate; `deterministic` leaves noise and quantizers out.
+    pub fn compile(&self, sample_rate_hz: f64, sampling: Sampling, deterministic: bool) -> Result<Runtime> {
+        positive("sample_rate_hz", sample_rate_hz)?;
+        let mut blocks = Vec::with_capacity(self.blocks.len());
+        for (k, (b, core)) in self.blocks.iter().zip(&self.cores).enumerate() {
+            blocks.push(
+                b.build(sample_rate_hz, sampling, deterministic, core.as_ref())
+                    .map_err(|e| in_block(k, b.kind(), e))?,
+            );
+        }
+        Ok(Runtime::new(blocks, sample_rate_hz, self.initial_input))
+    }
+
+    /// The stage at its own rate, per sample, with noise and quantization.
+    pub fn stage(&self) -> Result<Runtime> {
+        let fs = self.sample_rate_hz.ok_or_else(|| {
+            PreisachError::invalid(
+                "sample_rate_hz",
+                "the chain has none: give the stage's rate, or run a record with predict/simulate(t, u)",
+            )
+        })?;
+        self.compile(fs, Sampling::Zoh, false)
+    }
+
+    /// The deterministic output for the record `(t, u)` (noise and quantizers off; the
+    /// linear blocks by the first-order hold, exact for an input linear between samples)
+    /// at the rate of `t`. `initial_input` overrides the chain's own.
+    pub fn predict(&self, t: &[f64], u: &[f64], initial_input: Option<f64>) -> Result<Vec<f64>> {
+        self.run_record(t, u, initial_input, Sampling::Foh, true)
+    }
+
+    /// The simulated measurement for the record `(t, u)`: per sample (zero-order hold),
+    /// with noise and quantization, at the rate of `t`.
+    pub fn simulate(&self, t: &[f64], u: &[f64], initial_input: Option<f64>) -> Result<Vec<f64>> {
+        self.run_record(t, u, initial_input, Sampling::Zoh, false)
+    }
+
+    fn run_record(
+        &self,
+        t: &[f64],
+        u: &[f64],
+        initial_input: Option<f64>,
+        sampling: Sampling,
+        deterministic: bool,
+    ) -> Result<Vec<f64>> {
+        check_signal("u", u)?;
+        if t.len() != u.len() {
+            return Err(PreisachError::invalid(
+                "t",
+                format!("length {} does not match u (length {})", t.len(), u.len()),
+            ));
+        }
+        let fs = match (t.len(), sampling) {
+            (1, Sampling::Foh) => 1.0, // at rest: the output does not depend on the rate
+            _ => 1.0 / sample_period(t)?,
+        };
+        let mut rt = self.compile(fs, sampling, deterministic)?;
+        if initial_input.is_some() {
+            rt.set_initial_input(initial_input)?;
+        }
+        Ok(t.iter().zip(u).map(|(&tk, &x)| rt.step_at(tk, x)).collect())
+    }
+
+    /// The series blocks' continuous descriptions (creep, vibration, lowpass, delay,
+    /// sensor); any other block is an error naming it.
+    pub fn ltis(&self) -> Result<Vec<Lti>> {
+        self.blocks
+            .iter()
+            .enumerate()
+            .map(|(k, b)| {
+                b.lti().unwrap_or_else(|| {
+                    Err(PreisachError::invalid(
+                        format!("blocks[{k}] ({})", b.kind()),
+                        "not a linear block in series (expected creep, vibration, lowpass, delay or sensor)",
+                    ))
+                })
+            })
+            .collect()
+    }
+
+    /// The frequency response of the chain's series blocks at `f_hz` (all blocks must be
+    /// series linear ones, see [`Chain::ltis`]).
+    pub fn response(&self, f_hz: &[f64]) -> Result<Vec<C>> {
+        let ltis = self.ltis()?;
+        Ok(f_hz.iter().map(|&f| ltis.iter().fold(C::new(1.0, 0.0), |h, l| h * l.response(f))).collect())
+    }
+}
+
+/// Parse a list of blocks with `parse`, naming the block in errors.
+pub(super) fn parse_blocks(blocks: Vec<Value>, parse: impl Fn(Value) -> Result<BlockSpec>) -> Result<Vec<BlockSpec>> {
+    blocks
+        .into_iter()
+        .enumerate()
+        .map(|(k, v)| {
+            let kind = v.get("type").and_then(Value::as_str).unwrap_or("?").to_string();
+            parse(v).map_err(|e| in_block(k, &kind, e))
+        })
+        .collect()
+}
+
+impl PartialEq for Chain {
+    fn eq(&self, other: &Self) -> bool {
+        self.blocks == other.blocks
+            && self.sample_rate_hz == other.sample_rate_hz
+            && self.initial_input == other.initial_input
+            && self.report == other.report
+    }
+}
+
+/// The sample period of a time column, seconds: `t` must increase strictly and be
+/// regular (every sample within a quarter period of the line through its ends, so one
+/// missing sample is caught while the rounding of a stored time axis is not). Errors
+/// name the row (0-based).
+pub fn sample_period(t: &[f64]) -> Result<f64> {
+    check_signal("t", t)?;
+    if t.len() < 2 {
+        return Err(PreisachError::invalid("t", "need at least 2 samples to know the sample rate"));
+    }
+    if let Some(i) = (1..t.len()).find(|&i| t[i] <= t[i - 1]) {
+        return Err(PreisachError::invalid(
+            "t",
+            format!("time must increase strictly (row {i}: {} after {})", t[i], t[i - 1]),
+        ));
+    }
+    let n = t.len() - 1;
+    let period = (t[n] - t[0]) / n as f64;
+    let off = |k: usize| (t[k] - (t[0] + k as f64 * period)).abs() > 0.25 * period;
+    if let Some(k) = (0..t.len()).find(|&k| off(k)) {
+        // Name the first step that is off by as much (else the first sample off the grid).
+        let i = (1..t.len()).find(|&i| (t[i] - t[i - 1] - period).abs() > 0.25 * period).unwrap_or(k);
+        let step = t[i] - t[i - 1];
+        return Err(PreisachError::invalid(
+            "t",
+            format!("irregular sampling at row {i} (a step of {step:.6e} s; the record's period is {period:.6e} s)"),
+        ));
+    }
+    Ok(period)
+}
+
+/// A run-time block: coefficients and state.
 #[derive(Debug, Clone)]
 pub enum Block {
     Amplifier(Amplifier),
     Hysteresis(Hysteresis),
-    Creep(Creep),
-    Vibration(Vibration),
+    /// The rate branch: its filter runs on the nearest preceding hysteresis input.
+    Rate(Linear),
+    /// Creep, vibration, low-pass, delay.
+    Linear(Linear),
     Sensor(Sensor),
-    Lowpass(Lowpass),
-    Delay(Delay),
+    Drift(DriftParams),
     Noise(Noise),
     Quantizer(Quantizer),
-    Drift(Drift),
+    /// A block left out (noise or a quantizer in a deterministic run).
+    Pass,
 }
 
 impl Block {
-    /// One sample through the block. Never allocates.
-    #[inline]
-    pub fn step(&mut self, x: f64) -> f64 {
-        match self {
-            Block::Amplifier(b) => b.step(x),
-            Block::Hysteresis(b) => b.step(x),
-            Block::Creep(b) => b.step(x),
-            Block::Vibration(b) => b.step(x),
-            Block::Sensor(b) => b.step(x),
-            Block::Lowpass(b) => b.step(x),
-            Block::Delay(b) => b.step(x),
-            Block::Noise(b) => b.step(x),
-            Block::Quantizer(b) => b.step(x),
-            Block::Drift(b) => b.step(x),
-        }
-    }
-
-    /// Back to rest and to the start of its noise stream and clock (a replay).
-    pub fn reset(&mut self) {
+    /// Back to rest; `replay` also restarts noise streams from their seeds.
+    fn reset(&mut self, replay: bool) {
         match self {
             Block::Amplifier(b) => b.reset(),
             Block::Hysteresis(b) => b.reset(),
-            Block::Creep(b) => b.reset(),
-            Block::Vibration(b) => b.reset(),
-            Block::Sensor(b) => b.reset(),
-            Block::Lowpass(b) => b.reset(),
-            Block::Delay(b) => b.reset(),
-            Block::Noise(b) => b.reset(),
-            Block::Quantizer(_) => {}
-            Block::Drift(b) => b.set_time(0.0),
+            Block::Rate(b) | Block::Linear(b) => b.reset(),
+            Block::Sensor(b) => b.reset(replay),
+            Block::Noise(b) if replay => b.reset(),
+            _ => {}
         }
     }
 
-    /// Back to rest keeping noise streams and absolute time (a new record).
-    pub fn reset_state(&mut self) {
-        match self {
-            Block::Sensor(b) => b.reset_state(),
-            Block::Noise(_) | Block::Drift(_) | Block::Quantizer(_) => {}
-            other => other.reset(),
-        }
-    }
-
-    /// The block's parameters (its JSON form).
-    pub fn spec(&self) -> BlockSpec {
-        match self {
-            Block::Amplifier(b) => BlockSpec::Amplifier(b.params().clone()),
-            Block::Hysteresis(b) => BlockSpec::Hysteresis(b.params()),
-            Block::Creep(b) => BlockSpec::Creep(b.params().clone()),
-            Block::Vibration(b) => BlockSpec::Vibration(b.params().clone()),
-            Block::Sensor(b) => BlockSpec::Sensor(b.params().clone()),
-            Block::Lowpass(b) => BlockSpec::Lowpass(b.params().clone()),
-            Block::Delay(b) => BlockSpec::Delay(b.params().clone()),
-            Block::Noise(b) => BlockSpec::Noise(b.params().clone()),
-            Block::Quantizer(b) => BlockSpec::Quantizer(b.params().clone()),
-            Block::Drift(b) => BlockSpec::Drift(b.params().clone()),
-        }
-    }
-
-    /// The block's `"type"` name.
-    pub fn kind(&self) -> &'static str {
-        match self {
-            Block::Amplifier(_) => "amplifier",
-            Block::Hysteresis(_) => "hysteresis",
-            Block::Creep(_) => "creep",
-            Block::Vibration(_) => "vibration",
-            Block::Sensor(_) => "sensor",
-            Block::Lowpass(_) => "lowpass",
-            Block::Delay(_) => "delay",
-            Block::Noise(_) => "noise",
-            Block::Quantizer(_) => "quantizer",
-            Block::Drift(_) => "drift",
-        }
+    /// Whether it is `Pass`.
+    pub fn is_pass(&self) -> bool {
+        matches!(self, Block::Pass)
     }
 }
 
-/// The serialized form of a [`Chain`].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ChainSpec {
-    /// Format version ([`CHAIN_VERSION`]).
-    pub version: u32,
-    /// Sample rate, Hz; every block is discretized for it.
-    pub sample_rate_hz: f64,
-    /// Blocks in signal order.
-    pub blocks: Vec<BlockSpec>,
-}
-
-/// Blocks in series at one sample rate.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(try_from = "ChainSpec", into = "ChainSpec")]
-pub struct Chain {
-    pub version: u32,
-    pub sample_rate_hz: f64,
-    pub blocks: Vec<Block>,
+/// A chain compiled for one sample rate: the per-sample path. `step` never allocates.
+#[derive(Debug, Clone)]
+pub struct Runtime {
+    blocks: Vec<Block>,
+    sample_rate_hz: f64,
+    dt: f64,
     /// Samples since the time origin, and the origin (seconds).
     n: u64,
     t0: f64,
+    initial_input: Option<f64>,
+    /// Blocks to be settled at the initial input before the next sample.
+    pending: bool,
 }
 
-impl TryFrom<ChainSpec> for Chain {
-    type Error = PreisachError;
-    fn try_from(s: ChainSpec) -> Result<Self> {
-        Chain::from_spec(s)
-    }
-}
-
-impl From<Chain> for ChainSpec {
-    fn from(c: Chain) -> Self {
-        c.spec()
-    }
-}
-
-impl Chain {
-    /// Build and validate every block for `sample_rate_hz`. Errors name the block
-    /// (`blocks[2] (vibration): modes[0].damping: must be > 0, got 0`).
-    pub fn new(sample_rate_hz: f64, specs: Vec<BlockSpec>) -> Result<Self> {
-        positive("sample_rate_hz", sample_rate_hz)?;
-        let mut blocks = Vec::with_capacity(specs.len());
-        for (k, s) in specs.into_iter().enumerate() {
-            let kind = s.kind();
-            blocks.push(s.build(sample_rate_hz).map_err(|e| match e {
-                PreisachError::Invalid { name, problem } => {
-                    PreisachError::invalid(name, format!("{problem} (blocks[{k}], {kind})"))
-                }
-                other => other,
-            })?);
-        }
-        Ok(Chain { version: CHAIN_VERSION, sample_rate_hz, blocks, n: 0, t0: 0.0 })
+impl Runtime {
+    fn new(blocks: Vec<Block>, sample_rate_hz: f64, initial_input: Option<f64>) -> Self {
+        let dt = 1.0 / sample_rate_hz;
+        Runtime { blocks, sample_rate_hz, dt, n: 0, t0: 0.0, initial_input, pending: initial_input.is_some() }
     }
 
-    /// From the serialized form (checks the version).
-    pub fn from_spec(s: ChainSpec) -> Result<Self> {
-        if s.version != CHAIN_VERSION {
-            return Err(PreisachError::corrupt(
-                "chain",
-                format!("unsupported version {}, this build reads version {CHAIN_VERSION}", s.version),
-            ));
-        }
-        Chain::new(s.sample_rate_hz, s.blocks)
+    pub fn sample_rate_hz(&self) -> f64 {
+        self.sample_rate_hz
     }
 
-    /// Parse JSON: malformed text or an unknown field/type is `Corrupt`; a bad
-    /// parameter is `Invalid` naming it.
-    pub fn from_json(text: &str) -> Result<Self> {
-        let spec: ChainSpec = serde_json::from_str(text).map_err(|e| PreisachError::corrupt("chain", e.to_string()))?;
-        Chain::from_spec(spec)
-    }
-
-    /// The serialized form.
-    pub fn spec(&self) -> ChainSpec {
-        ChainSpec {
-            version: CHAIN_VERSION,
-            sample_rate_hz: self.sample_rate_hz,
-            blocks: self.blocks.iter().map(Block::spec).collect(),
-        }
-    }
-
-    /// Pretty JSON of [`Chain::spec`].
-    pub fn to_json(&self) -> String {
-        // Serializing plain data with finite numbers cannot fail.
-        serde_json::to_string_pretty(&self.spec()).expect("chain spec serializes")
-    }
-
-    /// Sample period, seconds.
-    pub fn dt(&self) -> f64 {
-        1.0 / self.sample_rate_hz
+    pub fn blocks_mut(&mut self) -> &mut [Block] {
+        &mut self.blocks
     }
 
     /// Absolute time of the next sample, seconds.
     pub fn time_s(&self) -> f64 {
-        self.t0 + self.n as f64 / self.sample_rate_hz
+        self.t0 + self.n as f64 * self.dt
     }
 
     /// Set the absolute time of the next sample (drift blocks follow).
     pub fn set_time(&mut self, t: f64) -> Result<()> {
-        super::finite("time_s", t)?;
-        self.t0 = t;
+        self.t0 = finite("time_s", t)?;
         self.n = 0;
-        for b in &mut self.blocks {
-            if let Block::Drift(d) = b {
-                d.set_time(t);
-            }
-        }
         Ok(())
     }
 
-    /// One sample through every block. Never allocates.
+    /// The input the blocks rest at before the next record (`None`: its first input).
+    pub fn set_initial_input(&mut self, x: Option<f64>) -> Result<()> {
+        if let Some(v) = x {
+            finite("initial_input", v)?;
+        }
+        self.initial_input = x;
+        self.reset_state();
+        Ok(())
+    }
+
+    /// One sample at the chain's clock. Never allocates.
     #[inline]
     pub fn step(&mut self, x: f64) -> f64 {
+        let t = self.time_s();
         self.n += 1;
-        let mut y = x;
+        self.step_at(t, x)
+    }
+
+    /// One sample at absolute time `t` (for drift), the clock untouched.
+    #[inline]
+    pub fn step_at(&mut self, t: f64, x: f64) -> f64 {
+        if self.pending {
+            self.settle(t);
+        }
+        let (mut y, mut hin) = (x, x);
         for b in &mut self.blocks {
-            y = b.step(y);
+            y = match b {
+                Block::Hysteresis(h) => {
+                    hin = y;
+                    h.step(y)
+                }
+                Block::Rate(r) => y + r.step(hin),
+                Block::Linear(l) => l.step(y),
+                Block::Amplifier(a) => a.step(y),
+                Block::Sensor(s) => s.step(y),
+                Block::Drift(d) => d.apply(y, t),
+                Block::Noise(n) => n.step(y),
+                Block::Quantizer(q) => q.step(y),
+                Block::Pass => y,
+            };
         }
         y
     }
 
-    /// Run a block of samples (`out.len() == u.len()`).
+    /// Every block at rest with the initial input (its output passed down the chain
+    /// without noise).
+    #[cold]
+    fn settle(&mut self, t: f64) {
+        self.pending = false;
+        let Some(x) = self.initial_input else { return };
+        let (mut y, mut hin) = (x, x);
+        for b in &mut self.blocks {
+            y = match b {
+                Block::Hysteresis(h) => {
+                    hin = y;
+                    h.settle(y)
+                }
+                Block::Rate(r) => y + r.settle(hin),
+                Block::Linear(l) => l.settle(y),
+                Block::Amplifier(a) => a.settle(y),
+                Block::Sensor(s) => s.settle(y),
+                Block::Drift(d) => d.apply(y, t),
+                Block::Quantizer(q) => q.step(y),
+                Block::Noise(_) | Block::Pass => y,
+            };
+        }
+    }
+
+    /// Run a block of samples at the chain's clock (`out.len() == u.len()`).
     pub fn run(&mut self, u: &[f64], out: &mut [f64]) {
         for (o, &x) in out.iter_mut().zip(u) {
             *o = self.step(x);
         }
     }
 
-    /// Full reset: rest state (in equilibrium with the next sample), time 0, noise
-    /// streams from their seeds (a replay gives the same output).
+    /// Full reset: rest (in equilibrium with the initial input, or the next sample), time
+    /// 0, noise streams from their seeds (a replay gives the same output).
     pub fn reset(&mut self) {
         self.n = 0;
         self.t0 = 0.0;
-        self.blocks.iter_mut().for_each(Block::reset);
+        self.blocks.iter_mut().for_each(|b| b.reset(true));
+        self.pending = self.initial_input.is_some();
     }
 
-    /// Back to rest (in equilibrium with the next sample) for a new record: absolute
-    /// time and noise streams run on.
+    /// Back to rest for a new record: absolute time and noise streams run on.
     pub fn reset_state(&mut self) {
-        self.blocks.iter_mut().for_each(Block::reset_state);
+        self.blocks.iter_mut().for_each(|b| b.reset(false));
+        self.pending = self.initial_input.is_some();
+    }
+}
+
+impl Serialize for Chain {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        let v: Value = serde_json::from_str(&self.to_json()).map_err(serde::ser::Error::custom)?;
+        v.serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for Chain {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        Chain::from_value(Value::deserialize(d)?).map_err(serde::de::Error::custom)
     }
 }

@@ -1,13 +1,13 @@
 //! Thermal drift: slow gain and offset change with absolute time,
-//! `y = (1 + gain_per_s · t) · x + offset + offset_per_s · t`, `t` in seconds since the
-//! chain's time origin (sample n is at `t = t0 + n / f_s`). Absolute time runs on
-//! across records: `Chain::reset_state` keeps it, `Chain::reset` returns it to 0.
+//! `y = (1 + gain_per_s · t) · x + offset + offset_per_s · t`, `t` in seconds (a record's
+//! own time column, or the chain's clock `t0 + n / f_s` per sample). Absolute time runs
+//! on across records.
 
 use super::finite;
 use crate::error::Result;
 use serde::{Deserialize, Serialize};
 
-/// Parameters of [`Drift`] (the JSON form). All default to 0.
+/// Parameters of a drift block (the JSON form). All default to 0.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DriftParams {
@@ -19,44 +19,17 @@ pub struct DriftParams {
     pub offset_per_s: f64,
 }
 
-/// See the module doc.
-#[derive(Debug, Clone)]
-pub struct Drift {
-    params: DriftParams,
-    dt: f64,
-    t0: f64,
-    n: u64,
-}
-
-impl Drift {
-    pub fn new(params: DriftParams, sample_rate_hz: f64) -> Result<Self> {
-        finite("gain_per_s", params.gain_per_s)?;
-        finite("offset", params.offset)?;
-        finite("offset_per_s", params.offset_per_s)?;
-        Ok(Drift { params, dt: 1.0 / sample_rate_hz, t0: 0.0, n: 0 })
+impl DriftParams {
+    pub fn check(&self) -> Result<()> {
+        finite("gain_per_s", self.gain_per_s)?;
+        finite("offset", self.offset)?;
+        finite("offset_per_s", self.offset_per_s)?;
+        Ok(())
     }
 
-    pub fn params(&self) -> &DriftParams {
-        &self.params
-    }
-
-    /// Time of the next sample, seconds.
-    pub fn time_s(&self) -> f64 {
-        self.t0 + self.n as f64 * self.dt
-    }
-
-    /// Set the time of the next sample.
-    pub fn set_time(&mut self, t: f64) {
-        self.t0 = t;
-        self.n = 0;
-    }
-
+    /// The output for input `x` at time `t`.
     #[inline]
-    pub fn step(&mut self, x: f64) -> f64 {
-        // t from a sample count, not an accumulated sum: no drift of the clock itself.
-        let t = self.t0 + self.n as f64 * self.dt;
-        self.n += 1;
-        let p = &self.params;
-        (1.0 + p.gain_per_s * t) * x + p.offset + p.offset_per_s * t
+    pub fn apply(&self, x: f64, t: f64) -> f64 {
+        (1.0 + self.gain_per_s * t) * x + self.offset + self.offset_per_s * t
     }
 }

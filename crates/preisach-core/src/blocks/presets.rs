@@ -18,7 +18,7 @@ use serde::{Deserialize, Serialize};
 use super::amplifier::AmplifierParams;
 use super::chain::{BlockSpec, Chain};
 use super::creep::CreepParams;
-use super::hysteresis::{HysteresisParams, ParametricHysteresis};
+use super::hysteresis::{HysteresisParams, Output, ParametricHysteresis};
 use super::sensor::{LowpassParams, QuantizerParams, SensorParams};
 use super::vibration::{Mode, VibrationParams};
 use crate::error::{PreisachError, Result};
@@ -91,8 +91,7 @@ impl Default for PaperOptions {
 /// part.
 pub fn paper_hysteresis(n_h: usize) -> ParametricHysteresis {
     ParametricHysteresis {
-        lo: -30.0,
-        hi: 180.0,
+        u_range: [-30.0, 180.0],
         n_h,
         hysteretic_stroke: 30.0,
         coercivity_median: 12.0,
@@ -103,7 +102,8 @@ pub fn paper_hysteresis(n_h: usize) -> ParametricHysteresis {
         reversible_saturation: 1.5,
         reversible_width: Some(90.0),
         offset: 0.0,
-        interpolated: true,
+        output: Output::Interpolated,
+        initial_extrema: None,
     }
 }
 
@@ -130,7 +130,7 @@ pub fn paper(o: &PaperOptions) -> Result<Chain> {
         blocks.push(BlockSpec::Creep(CreepParams::log_law(o.creep_per_decade, 0.1, 100.0)));
     }
     blocks.push(BlockSpec::Vibration(VibrationParams {
-        modes: vec![Mode { freq_hz: o.resonance_hz, damping: o.damping }],
+        modes: vec![Mode { frequency_hz: o.resonance_hz, damping: o.damping }],
     }));
     blocks.push(BlockSpec::Sensor(SensorParams {
         gain: 0.2,
@@ -147,7 +147,7 @@ pub fn paper(o: &PaperOptions) -> Result<Chain> {
             offset_per_s: o.drift_offset_per_s,
         }));
     }
-    Chain::new(o.sample_rate_hz, blocks)
+    Chain::new(blocks)?.with_sample_rate(Some(o.sample_rate_hz))
 }
 
 /// Names of the presets.

@@ -1,14 +1,11 @@
-//! Measurement-side blocks: Butterworth low-pass, pure (fractional) delay, white
-//! noise, ADC quantizer, and the [`Sensor`] that chains them behind a gain
-//! (capacitive gauge: 1/5 V/µm in the seed's setup, §3.1). `lowpass`, `delay`,
-//! `noise` and `quantizer` are also blocks of their own.
-//!
-//! A record starts at rest: the low-pass and the delay start in equilibrium with the
-//! first sample (constant in, constant out from the first sample); noise and
-//! quantizer have no state to settle.
+//! Measurement-side blocks: Butterworth low-pass, pure delay, white noise, ADC
+//! quantizer, and the [`Sensor`] that chains them behind a gain (capacitive gauge:
+//! 1/5 V/µm in the seed's setup, §3.1). `lowpass`, `delay`, `noise` and `quantizer` are
+//! also blocks of their own.
 
+use super::lti::{Discretization, Linear, Lti, Sampling, Section, C};
 use super::rng::Rng;
-use super::{below_nyquist, finite, non_negative};
+use super::{below_nyquist, finite, non_negative, positive};
 use crate::error::{PreisachError, Result};
 use serde::{Deserialize, Serialize};
 
@@ -18,144 +15,59 @@ fn default_order() -> usize {
     2
 }
 
-/// Parameters of [`Lowpass`] (the JSON form).
+/// Parameters of a Butterworth low-pass (the JSON form).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LowpassParams {
-    /// −3 dB frequency, Hz (> 0, below Nyquist).
+    /// −3 dB frequency, Hz (> 0; below Nyquist for a per-sample run).
     pub cutoff_hz: f64,
     /// Butterworth order, 1–4 (default 2).
     #[serde(default = "default_order")]
     pub order: usize,
 }
 
-/// One second-order section, transposed direct form II (a first-order section has
-/// `b2 = a2 = 0`).
-#[derive(Debug, Clone, Copy, Default)]
-struct Biquad {
-    b0: f64,
-    b1: f64,
-    b2: f64,
-    a1: f64,
-    a2: f64,
-    s1: f64,
-    s2: f64,
-}
-
-impl Biquad {
-    #[inline(always)]
-    fn step(&mut self, x: f64) -> f64 {
-        let y = self.b0 * x + self.s1;
-        self.s1 = self.b1 * x - self.a1 * y + self.s2;
-        self.s2 = self.b2 * x - self.a2 * y;
-        y
+impl LowpassParams {
+    /// The analog Butterworth filter (static gain 1) as one section: poles
+    /// `ωc e^{jπ(2k + N + 1)/2N}`, residues `Π(−p_j) / Π_{j≠k}(p_k − p_j)`.
+    pub fn lti(&self) -> Result<Lti> {
+        let fc = positive("cutoff_hz", self.cutoff_hz)?;
+        let n = self.order;
+        if !(1..=4).contains(&n) {
+            return Err(PreisachError::invalid("order", format!("must be 1, 2, 3 or 4, got {n}")));
+        }
+        let wc = std::f64::consts::TAU * fc;
+        let ps: Vec<C> =
+            (0..n).map(|k| C::from_polar(wc, std::f64::consts::PI * (2 * k + n + 1) as f64 / (2 * n) as f64)).collect();
+        let num: C = ps.iter().map(|&p| -p).product();
+        let mut terms = Vec::new();
+        for (k, &p) in ps.iter().enumerate() {
+            if p.im < -1e-9 * wc {
+                continue; // the conjugate of a pole already taken
+            }
+            let p = if p.im.abs() <= 1e-9 * wc { C::new(p.re, 0.0) } else { p };
+            let den: C = ps.iter().enumerate().filter(|&(j, _)| j != k).map(|(_, &q)| p - q).product();
+            let r = num.re / den;
+            terms.push((p, if p.im == 0.0 { C::new(r.re, 0.0) } else { r }));
+        }
+        Ok(Lti::series(vec![Section::new(0.0, terms)?]))
     }
 
-    /// DC gain `(b0 + b1 + b2) / (1 + a1 + a2)`.
-    fn dc_gain(&self) -> f64 {
-        (self.b0 + self.b1 + self.b2) / (1.0 + self.a1 + self.a2)
-    }
-
-    /// States of the steady state for a constant input `x`: the output is
-    /// `dc_gain · x`. Returns that output.
-    fn settle(&mut self, x: f64) -> f64 {
-        let y = self.dc_gain() * x;
-        self.s1 = y - self.b0 * x;
-        self.s2 = self.b2 * x - self.a2 * y;
-        y
-    }
-}
-
-/// Butterworth low-pass by the bilinear transform with the cutoff prewarped, so the
-/// digital filter has DC gain 1 and exactly −3 dB at `cutoff_hz`.
-///
-/// Starts at rest with its first input: on the first `step` after construction or
-/// `reset` the states are set to the steady state for that input (as if it had been
-/// applied forever), so a constant input gives a constant output from the first sample.
-#[derive(Debug, Clone)]
-pub struct Lowpass {
-    params: LowpassParams,
-    sections: [Biquad; 2],
-    n: usize,
-    /// Whether the states are set (false until the first `step` after a reset).
-    settled: bool,
-}
-
-impl Lowpass {
-    pub fn new(params: LowpassParams, sample_rate_hz: f64) -> Result<Self> {
-        let fc = below_nyquist("cutoff_hz", params.cutoff_hz, sample_rate_hz)?;
-        let order = params.order;
-        if !(1..=4).contains(&order) {
-            return Err(PreisachError::invalid("order", format!("must be 1, 2, 3 or 4, got {order}")));
-        }
-        let k = (std::f64::consts::PI * fc / sample_rate_hz).tan();
-        let mut sections = [Biquad::default(); 2];
-        let mut n = 0;
-        if order % 2 == 1 {
-            let b0 = k / (k + 1.0);
-            sections[n] = Biquad { b0, b1: b0, a1: (k - 1.0) / (k + 1.0), ..Biquad::default() };
-            n += 1;
-        }
-        // Pole pairs of the analog prototype: Q_m = 1 / (2 sin((2m − 1)π / 2N)).
-        for m in 1..=order / 2 {
-            let q = 1.0 / (2.0 * ((2 * m - 1) as f64 * std::f64::consts::PI / (2 * order) as f64).sin());
-            let norm = 1.0 / (1.0 + k / q + k * k);
-            let b0 = k * k * norm;
-            sections[n] = Biquad {
-                b0,
-                b1: 2.0 * b0,
-                b2: b0,
-                a1: 2.0 * (k * k - 1.0) * norm,
-                a2: (1.0 - k / q + k * k) * norm,
-                ..Biquad::default()
-            };
-            n += 1;
-        }
-        Ok(Lowpass { params, sections, n, settled: false })
-    }
-
-    pub fn params(&self) -> &LowpassParams {
-        &self.params
-    }
-
-    #[inline]
-    pub fn step(&mut self, x: f64) -> f64 {
-        if !self.settled {
-            self.settle(x);
-        }
-        let mut y = x;
-        for s in &mut self.sections[..self.n] {
-            y = s.step(y);
-        }
-        y
-    }
-
-    /// Set the states to the steady state for a constant input `x`.
-    #[cold]
-    fn settle(&mut self, x: f64) {
-        let mut y = x;
-        for s in &mut self.sections[..self.n] {
-            y = s.settle(y);
-        }
-        self.settled = true;
-    }
-
-    /// Back to rest: the next `step` starts in equilibrium with its input.
-    pub fn reset(&mut self) {
-        for s in &mut self.sections {
-            s.s1 = 0.0;
-            s.s2 = 0.0;
-        }
-        self.settled = false;
+    /// How the filter is sampled: per sample, Tustin's transform prewarped at the cutoff
+    /// (checked below Nyquist), so the digital filter has static gain 1 and exactly
+    /// −3 dB at `cutoff_hz`; over records, the first-order hold.
+    pub fn discretization(&self, sampling: Sampling, sample_rate_hz: f64) -> Result<Discretization> {
+        Ok(match sampling {
+            Sampling::Zoh => {
+                Discretization::Bilinear { prewarp_hz: below_nyquist("cutoff_hz", self.cutoff_hz, sample_rate_hz)? }
+            }
+            Sampling::Foh => Discretization::Foh,
+        })
     }
 }
 
 // ---------------------------------------------------------------- delay
 
-/// Largest delay accepted, in samples (keeps the ring buffer at most 128 MB).
-pub const MAX_DELAY_SAMPLES: f64 = 16_000_000.0;
-
-/// Parameters of [`Delay`] (the JSON form).
+/// Parameters of a pure delay (the JSON form).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DelayParams {
@@ -163,77 +75,9 @@ pub struct DelayParams {
     pub delay_s: f64,
 }
 
-/// Pure delay `y[n] = x(n − D)`, `D = delay_s · f_s` samples: an integer ring buffer
-/// plus linear interpolation for the fractional part (exact on ramps). Starts at
-/// rest with its first input: on the first `step` after construction or `reset` the
-/// line is filled with that input (the signal held it before the first sample).
-#[derive(Debug, Clone)]
-pub struct Delay {
-    params: DelayParams,
-    /// Whether the line is filled (false until the first `step` after a reset).
-    settled: bool,
-    buf: Vec<f64>,
-    mask: usize,
-    head: usize,
-    n_int: usize,
-    frac: f64,
-}
-
-impl Delay {
-    pub fn new(params: DelayParams, sample_rate_hz: f64) -> Result<Self> {
-        let d = non_negative("delay_s", params.delay_s)? * sample_rate_hz;
-        if d > MAX_DELAY_SAMPLES {
-            return Err(PreisachError::invalid(
-                "delay_s",
-                format!("{} s is {d:.0} samples, above the limit of {MAX_DELAY_SAMPLES:.0}", params.delay_s),
-            ));
-        }
-        let mut n_int = d.floor() as usize;
-        let mut frac = d - n_int as f64;
-        // Snap delays within rounding of an integer (e.g. 3e-5 s · 1e5 Hz) to it.
-        if frac > 1.0 - 1e-9 {
-            n_int += 1;
-            frac = 0.0;
-        } else if frac < 1e-9 {
-            frac = 0.0;
-        }
-        // Power-of-two length: the index wraps with a mask, no division per sample.
-        let len = (n_int + 2).next_power_of_two();
-        Ok(Delay { params, settled: false, buf: vec![0.0; len], mask: len - 1, head: 0, n_int, frac })
-    }
-
-    pub fn params(&self) -> &DelayParams {
-        &self.params
-    }
-
-    /// Delay in samples (integer + fractional part).
-    pub fn samples(&self) -> f64 {
-        self.n_int as f64 + self.frac
-    }
-
-    #[inline]
-    pub fn step(&mut self, x: f64) -> f64 {
-        if !self.settled {
-            self.settle(x);
-        }
-        self.head = (self.head + 1) & self.mask;
-        self.buf[self.head] = x;
-        let a = self.buf[(self.head.wrapping_sub(self.n_int)) & self.mask];
-        let b = self.buf[(self.head.wrapping_sub(self.n_int + 1)) & self.mask];
-        a + self.frac * (b - a)
-    }
-
-    /// Fill the line with `x`.
-    #[cold]
-    fn settle(&mut self, x: f64) {
-        self.buf.iter_mut().for_each(|v| *v = x);
-        self.settled = true;
-    }
-
-    /// Back to rest: the next `step` fills the line with its input.
-    pub fn reset(&mut self) {
-        self.head = 0;
-        self.settled = false;
+impl DelayParams {
+    pub fn lti(&self) -> Result<Lti> {
+        Ok(Lti::delay(non_negative("delay_s", self.delay_s)?))
     }
 }
 
@@ -250,35 +94,37 @@ pub struct NoiseParams {
     pub seed: u64,
 }
 
+impl NoiseParams {
+    pub fn check(&self) -> Result<()> {
+        non_negative("std", self.std).map(|_| ())
+    }
+}
+
 /// Additive white Gaussian noise, deterministic for a seed; `reset` restarts the
 /// stream from the seed.
 #[derive(Debug, Clone)]
 pub struct Noise {
-    params: NoiseParams,
+    std: f64,
+    seed: u64,
     rng: Rng,
 }
 
 impl Noise {
-    pub fn new(params: NoiseParams, _sample_rate_hz: f64) -> Result<Self> {
-        non_negative("std", params.std)?;
-        let rng = Rng::new(params.seed);
-        Ok(Noise { params, rng })
-    }
-
-    pub fn params(&self) -> &NoiseParams {
-        &self.params
+    pub fn new(p: &NoiseParams) -> Result<Self> {
+        p.check()?;
+        Ok(Noise { std: p.std, seed: p.seed, rng: Rng::new(p.seed) })
     }
 
     #[inline]
     pub fn step(&mut self, x: f64) -> f64 {
-        if self.params.std == 0.0 {
+        if self.std == 0.0 {
             return x;
         }
-        x + self.params.std * self.rng.normal()
+        x + self.std * self.rng.normal()
     }
 
     pub fn reset(&mut self) {
-        self.rng = Rng::new(self.params.seed);
+        self.rng = Rng::new(self.seed);
     }
 }
 
@@ -298,29 +144,25 @@ pub struct QuantizerParams {
 /// at `hi`), round to nearest, clipped at the ends.
 #[derive(Debug, Clone)]
 pub struct Quantizer {
-    params: QuantizerParams,
+    lo: f64,
     q: f64,
     max_code: f64,
 }
 
 impl Quantizer {
-    pub fn new(params: QuantizerParams, _sample_rate_hz: f64) -> Result<Self> {
-        let bits = params.bits;
+    pub fn new(p: &QuantizerParams) -> Result<Self> {
+        let bits = p.bits;
         if !(1..=32).contains(&bits) {
             return Err(PreisachError::invalid("bits", format!("must be in 1..=32, got {bits}")));
         }
-        let [lo, hi] = params.range;
+        let [lo, hi] = p.range;
         finite("range", lo)?;
         finite("range", hi)?;
         if lo >= hi {
             return Err(PreisachError::invalid("range", format!("lo must be below hi, got [{lo}, {hi}]")));
         }
         let max_code = ((1u64 << bits) - 1) as f64;
-        Ok(Quantizer { q: (hi - lo) / max_code, max_code, params })
-    }
-
-    pub fn params(&self) -> &QuantizerParams {
-        &self.params
+        Ok(Quantizer { lo, q: (hi - lo) / max_code, max_code })
     }
 
     /// Step between codes.
@@ -330,9 +172,8 @@ impl Quantizer {
 
     #[inline]
     pub fn step(&self, x: f64) -> f64 {
-        let lo = self.params.range[0];
-        let code = ((x - lo) / self.q).round().clamp(0.0, self.max_code);
-        lo + code * self.q
+        let code = ((x - self.lo) / self.q).round().clamp(0.0, self.max_code);
+        self.lo + code * self.q
     }
 }
 
@@ -372,67 +213,74 @@ impl Default for SensorParams {
     }
 }
 
-/// gain → low-pass → delay → noise → ADC. Starts at rest with its first input (the
-/// low-pass and delay settle on it; see [`Lowpass`], [`Delay`]).
+impl SensorParams {
+    /// The low-pass and the delay as one linear description (validates them).
+    pub fn lti(&self) -> Result<Lti> {
+        finite("gain", self.gain)?;
+        let lp = match &self.lowpass {
+            Some(p) => p.lti()?,
+            None => Lti::default(),
+        };
+        Ok(lp.then(DelayParams { delay_s: self.delay_s }.lti()?))
+    }
+
+    /// Everything but the sampling (noise and ADC included).
+    pub fn check(&self) -> Result<()> {
+        self.lti()?;
+        NoiseParams { std: self.noise_std, seed: self.seed }.check().map_err(|_| {
+            PreisachError::invalid("noise_std", format!("must be finite and >= 0, got {}", self.noise_std))
+        })?;
+        self.adc.as_ref().map(Quantizer::new).transpose().map(|_| ())
+    }
+}
+
+/// gain → low-pass → delay → noise → ADC.
 #[derive(Debug, Clone)]
 pub struct Sensor {
-    params: SensorParams,
-    lowpass: Option<Lowpass>,
-    delay: Option<Delay>,
+    gain: f64,
+    linear: Linear,
     noise: Noise,
     adc: Option<Quantizer>,
 }
 
 impl Sensor {
-    pub fn new(params: SensorParams, fs: f64) -> Result<Self> {
-        finite("gain", params.gain)?;
-        let lowpass = params.lowpass.clone().map(|p| Lowpass::new(p, fs)).transpose()?;
-        let delay = Delay::new(DelayParams { delay_s: params.delay_s }, fs)?;
-        let delay = if delay.samples() > 0.0 { Some(delay) } else { None };
-        let noise = Noise::new(NoiseParams { std: params.noise_std, seed: params.seed }, fs).map_err(|_| {
-            PreisachError::invalid("noise_std", format!("must be finite and >= 0, got {}", params.noise_std))
-        })?;
-        let adc = params.adc.clone().map(|p| Quantizer::new(p, fs)).transpose()?;
-        Ok(Sensor { params, lowpass, delay, noise, adc })
-    }
-
-    pub fn params(&self) -> &SensorParams {
-        &self.params
+    /// Sampled at `fs`; `deterministic` leaves the noise and the ADC out.
+    pub fn new(p: &SensorParams, fs: f64, sampling: Sampling, deterministic: bool) -> Result<Self> {
+        p.check()?;
+        let d = match &p.lowpass {
+            Some(lp) => lp.discretization(sampling, fs)?,
+            None => sampling.plain(),
+        };
+        let linear = Linear::new(&p.lti()?, fs, d)?;
+        let std = if deterministic { 0.0 } else { p.noise_std };
+        let noise = Noise::new(&NoiseParams { std, seed: p.seed })?;
+        let adc = if deterministic { None } else { p.adc.as_ref().map(Quantizer::new).transpose()? };
+        Ok(Sensor { gain: p.gain, linear, noise, adc })
     }
 
     #[inline]
     pub fn step(&mut self, x: f64) -> f64 {
-        let mut y = self.params.gain * x;
-        if let Some(f) = &mut self.lowpass {
-            y = f.step(y);
+        let y = self.noise.step(self.linear.step(self.gain * x));
+        match &self.adc {
+            Some(q) => q.step(y),
+            None => y,
         }
-        if let Some(d) = &mut self.delay {
-            y = d.step(y);
-        }
-        y = self.noise.step(y);
-        if let Some(q) = &self.adc {
-            y = q.step(y);
-        }
-        y
     }
 
-    pub fn reset(&mut self) {
-        if let Some(f) = &mut self.lowpass {
-            f.reset();
+    /// At rest with `x` (no noise); returns the output then.
+    pub fn settle(&mut self, x: f64) -> f64 {
+        let y = self.linear.settle(self.gain * x);
+        match &self.adc {
+            Some(q) => q.step(y),
+            None => y,
         }
-        if let Some(d) = &mut self.delay {
-            d.reset();
-        }
-        self.noise.reset();
     }
 
-    /// Back to rest keeping the noise stream where it is (a new record, not a replay).
-    pub fn reset_state(&mut self) {
-        if let Some(f) = &mut self.lowpass {
-            f.reset();
-        }
-        if let Some(d) = &mut self.delay {
-            d.reset();
+    /// Back to rest; `replay` restarts the noise stream from its seed.
+    pub fn reset(&mut self, replay: bool) {
+        self.linear.reset();
+        if replay {
+            self.noise.reset();
         }
     }
 }

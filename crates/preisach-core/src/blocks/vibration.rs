@@ -1,106 +1,52 @@
-//! Vibration: lightly damped second-order modes in series, each with unit DC gain,
-//! `G(s) = ω² / (s² + 2ζω s + ω²)`, discretized exactly for a zero-order-held input
-//! (`A_d = exp(A T)`, `B_d = A⁻¹ (A_d − I) B`; nalgebra 2×2 maths). The output of a
-//! sample is the mode's position at the end of its hold interval.
+//! Vibration: lightly damped second-order modes in series, each with unit static gain,
+//! `G(s) = ω² / (s² + 2ζω s + ω²)`.
 //!
-//! A record starts at rest: on the first `step` after construction or `reset` every
-//! mode starts in equilibrium with that input (the discrete fixed point
-//! `x = (I − A_d)⁻¹ B_d u`: position = DC gain · u, velocity 0), so a constant input
-//! gives a constant output from the first sample and no ringing.
+//! One section per mode: below critical damping (ζ < 1) the pole pair
+//! `−ζω ± jω√(1 − ζ²)` with residue `ω² / (2jω√(1 − ζ²))`; at or above it (a mode that
+//! does not ring) two first-order sections `−p_k / (s − p_k)`, `p_{1,2} = −ζω ± ω√(ζ² − 1)`.
 
-use super::{below_nyquist, positive};
+use super::lti::{Lti, Section, C};
+use super::positive;
 use crate::error::Result;
-use nalgebra::{Matrix2, Vector2};
 use serde::{Deserialize, Serialize};
 
 /// One mode: natural frequency and damping ratio.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Mode {
-    /// Natural (undamped) frequency, Hz (> 0, below Nyquist).
-    pub freq_hz: f64,
+    /// Natural (undamped) frequency, Hz (> 0; below Nyquist for a per-sample run).
+    pub frequency_hz: f64,
     /// Damping ratio ζ (> 0).
     pub damping: f64,
 }
 
-/// Parameters of [`Vibration`] (the JSON form).
+/// Parameters of a vibration block (the JSON form).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct VibrationParams {
-    /// Modes applied in series (the DC gain stays 1).
+    /// Modes applied in series (the static gain stays 1).
     pub modes: Vec<Mode>,
 }
 
-#[derive(Debug, Clone)]
-struct DiscreteMode {
-    ad: Matrix2<f64>,
-    bd: Vector2<f64>,
-    /// Steady state per unit input, `(I − A_d)⁻¹ B_d` (≈ [1, 0]).
-    xss: Vector2<f64>,
-    x: Vector2<f64>,
-}
-
-/// Modes in series; see the module doc (starts at rest with its first input).
-#[derive(Debug, Clone)]
-pub struct Vibration {
-    params: VibrationParams,
-    modes: Vec<DiscreteMode>,
-    /// Whether the states are set (false until the first `step` after a reset).
-    settled: bool,
-}
-
-impl Vibration {
-    pub fn new(params: VibrationParams, sample_rate_hz: f64) -> Result<Self> {
-        let t = 1.0 / sample_rate_hz;
-        let mut modes = Vec::with_capacity(params.modes.len());
-        for (k, m) in params.modes.iter().enumerate() {
-            let f = below_nyquist(&format!("modes[{k}].freq_hz"), m.freq_hz, sample_rate_hz)?;
+impl VibrationParams {
+    /// The continuous description (validates the parameters).
+    pub fn lti(&self) -> Result<Lti> {
+        let mut sections = Vec::with_capacity(self.modes.len());
+        for (k, m) in self.modes.iter().enumerate() {
+            let f = positive(&format!("modes[{k}].frequency_hz"), m.frequency_hz)?;
             let z = positive(&format!("modes[{k}].damping"), m.damping)?;
             let w = std::f64::consts::TAU * f;
-            let a = Matrix2::new(0.0, 1.0, -w * w, -2.0 * z * w);
-            let b = Vector2::new(0.0, w * w);
-            let ad = (a * t).exp();
-            // A is invertible for ω > 0 (det = ω²).
-            let a_inv = Matrix2::new(-2.0 * z * w, -1.0, w * w, 0.0) / (w * w);
-            let bd = a_inv * (ad - Matrix2::identity()) * b;
-            // I − A_d is invertible: the eigenvalues of A_d lie inside the unit circle.
-            let xss = (Matrix2::identity() - ad).try_inverse().unwrap_or_else(Matrix2::zeros) * bd;
-            modes.push(DiscreteMode { ad, bd, xss, x: Vector2::zeros() });
+            if z < 1.0 {
+                let wd = w * (1.0 - z * z).sqrt();
+                let p = C::new(-z * w, wd);
+                sections.push(Section::new(0.0, [(p, C::new(0.0, -w * w / (2.0 * wd)))])?);
+            } else {
+                let s = w * (z * z - 1.0).sqrt();
+                for p in [-z * w + s, -z * w - s] {
+                    sections.push(Section::new(0.0, [(C::new(p, 0.0), C::new(-p, 0.0))])?);
+                }
+            }
         }
-        Ok(Vibration { params, modes, settled: false })
-    }
-
-    pub fn params(&self) -> &VibrationParams {
-        &self.params
-    }
-
-    #[inline]
-    pub fn step(&mut self, x: f64) -> f64 {
-        if !self.settled {
-            self.settle(x);
-        }
-        let mut u = x;
-        for m in &mut self.modes {
-            m.x = m.ad * m.x + m.bd * u;
-            u = m.x[0];
-        }
-        u
-    }
-
-    /// Every mode at its steady state for a constant input `x`.
-    #[cold]
-    fn settle(&mut self, x: f64) {
-        let mut u = x;
-        for m in &mut self.modes {
-            m.x = m.xss * u;
-            u = m.x[0];
-        }
-        self.settled = true;
-    }
-
-    /// Back to rest: the next `step` starts in equilibrium with its input.
-    pub fn reset(&mut self) {
-        self.modes.iter_mut().for_each(|m| m.x = Vector2::zeros());
-        self.settled = false;
+        Ok(Lti::series(sections))
     }
 }

@@ -6,9 +6,9 @@
 //!   over the masses w >= 0 and the offset c of the interpolated model, h = H_w[u],
 //! ```
 //!
-//! where `L` is a cascade of linear blocks (creep, modes, low-pass filters) given as
-//! partial fractions and simulated exactly for an input linear between samples, the
-//! same recursion as `preisach.chain.lti`. `h` is linear in (Everett values, offset), so
+//! where `L` is a cascade of linear blocks (creep, modes, low-pass filters: their
+//! continuous descriptions, `blocks::lti`) sampled by the first-order hold, exact for an
+//! input linear between samples (a chain's `predict`). `h` is linear in (Everett values, offset), so
 //! this is a least-squares problem, but `L` mixes every sample with its past: the rows no
 //! longer merge and the dense problem (samples × cells) is out of reach.
 //!
@@ -30,225 +30,15 @@
 
 use clarabel::algebra::CscMatrix;
 use clarabel::qdldl::{QDLDLFactorisation, QDLDLSettingsBuilder};
-use nalgebra::Complex;
 
 use super::qp::key;
 use super::rows::{combine, emit_row};
 use super::{fit, FitOptions, FitReport, Solver};
+use crate::blocks::lti::{Discretization, Filter, Lti};
 use crate::error::{check_scalar, check_signal, PreisachError, Result};
 use crate::grid::Grid;
 use crate::memory::Memory;
 use crate::model::PreisachModel;
-
-type C = Complex<f64>;
-
-/// One linear block as partial fractions: `H(s) = direct + Σ r_k / (s − p_k)`; a pole
-/// with a non-zero imaginary part stands for itself and its conjugate (pass one of each
-/// pair), as in `preisach.chain.lti`.
-#[derive(Debug, Clone, PartialEq)]
-pub struct LtiBlock {
-    pub poles: Vec<(f64, f64)>,
-    pub residues: Vec<(f64, f64)>,
-    pub direct: f64,
-}
-
-/// A pole discretized for a first-order-hold input: `z[0] = −x[0]/p` (at rest),
-/// `z[n] = a z[n−1] + b0 x[n−1] + b1 x[n]`, output `Re(g z)`.
-#[derive(Debug, Clone, Copy)]
-struct Foh {
-    a: C,
-    b0: C,
-    b1: C,
-    init: C,
-    g: C,
-}
-
-/// A block discretized at one sample period.
-#[derive(Debug, Clone)]
-pub struct Lti {
-    poles: Vec<Foh>,
-    direct: f64,
-}
-
-impl Lti {
-    /// Discretize `block` at sample period `dt` (stable poles only).
-    pub fn new(block: &LtiBlock, dt: f64) -> Result<Self> {
-        check_scalar("dt", dt)?;
-        if dt <= 0.0 {
-            return Err(PreisachError::invalid("dt", format!("must be > 0, got {dt}")));
-        }
-        check_scalar("direct", block.direct)?;
-        if block.poles.len() != block.residues.len() {
-            return Err(PreisachError::invalid(
-                "residues",
-                format!("{} residues for {} poles", block.residues.len(), block.poles.len()),
-            ));
-        }
-        let mut poles = Vec::with_capacity(block.poles.len());
-        for (&(pr, pi), &(rr, ri)) in block.poles.iter().zip(&block.residues) {
-            for v in [pr, pi, rr, ri] {
-                check_scalar("poles", v)?;
-            }
-            if pr >= 0.0 {
-                return Err(PreisachError::invalid(
-                    "poles",
-                    format!("unstable pole {pr}{pi:+}j (real part must be < 0)"),
-                ));
-            }
-            let p = C::new(pr, pi);
-            let pt = p * dt;
-            let a = pt.exp();
-            // Exact integrals of e^{p(T−τ)} against the hold's two ramps; series forms
-            // where the closed forms cancel (tiny |pT|).
-            let (i0, i1) = if pt.norm() < 1e-4 {
-                (dt * (1.0 + pt / 2.0 + pt * pt / 6.0), dt * (0.5 + pt / 6.0 + pt * pt / 24.0))
-            } else {
-                ((a - 1.0) / p, (a - 1.0) / (p * p * dt) - 1.0 / p)
-            };
-            let r = C::new(rr, ri);
-            let g = if pi != 0.0 { 2.0 * r } else { r };
-            poles.push(Foh { a, b0: i0 - i1, b1: i1, init: -1.0 / p, g });
-        }
-        Ok(Lti { poles, direct: block.direct })
-    }
-
-    /// `y = L x`, starting at rest.
-    pub fn apply(&self, x: &[f64], y: &mut [f64]) {
-        for (o, &v) in y.iter_mut().zip(x) {
-            *o = self.direct * v;
-        }
-        if x.is_empty() {
-            return;
-        }
-        for f in &self.poles {
-            let mut z = f.init * x[0];
-            y[0] += (f.g * z).re;
-            for n in 1..x.len() {
-                z = f.a * z + f.b0 * x[n - 1] + f.b1 * x[n];
-                y[n] += (f.g * z).re;
-            }
-        }
-    }
-
-    /// `x = Lᵀ w` (the exact adjoint of [`Lti::apply`], at-rest start included).
-    pub fn adjoint(&self, w: &[f64], x: &mut [f64]) {
-        for (o, &v) in x.iter_mut().zip(w) {
-            *o = self.direct * v;
-        }
-        let n = w.len();
-        if n == 0 {
-            return;
-        }
-        for f in &self.poles {
-            // G[m] = Σ_{k >= m} a^{k−m} g w[k]; x[m] gets b1 G[m] (m >= 1), b0 G[m+1]
-            // (m <= n−2) and init G[0] (m = 0).
-            let mut g_next = C::new(0.0, 0.0);
-            for m in (0..n).rev() {
-                let g_m = f.g * w[m] + f.a * g_next;
-                let mut v = f.b0 * g_next;
-                v += if m == 0 { f.init * g_m } else { f.b1 * g_m };
-                x[m] += v.re;
-                g_next = g_m;
-            }
-        }
-    }
-}
-
-/// A cascade of blocks, first block applied first. The blocks run fused in one pass over
-/// the samples (every pole's recursion advances each sample): the recursions are
-/// latency-bound, and independent ones in one loop overlap.
-#[derive(Debug, Clone)]
-pub struct Cascade {
-    blocks: Vec<Lti>,
-    /// Poles of all blocks, in block order.
-    poles: Vec<Foh>,
-    /// Per block: poles `start..end` and the direct term.
-    spans: Vec<(usize, usize, f64)>,
-    // Scratch: pole states and each block's previous input.
-    z: Vec<C>,
-    prev: Vec<f64>,
-}
-
-impl Cascade {
-    pub fn new(blocks: &[LtiBlock], dt: f64) -> Result<Self> {
-        let blocks = blocks.iter().map(|b| Lti::new(b, dt)).collect::<Result<Vec<_>>>()?;
-        let mut poles = Vec::new();
-        let mut spans = Vec::with_capacity(blocks.len());
-        for b in &blocks {
-            let s = poles.len();
-            poles.extend(b.poles.iter().copied());
-            spans.push((s, poles.len(), b.direct));
-        }
-        let (np, nb) = (poles.len(), blocks.len());
-        Ok(Cascade { blocks, poles, spans, z: vec![C::new(0.0, 0.0); np], prev: vec![0.0; nb] })
-    }
-
-    /// The blocks one after the other (the reference the fused pass must equal).
-    pub fn apply_blockwise(&self, x: &[f64], y: &mut [f64]) {
-        y.copy_from_slice(x);
-        let mut buf = vec![0.0; x.len()];
-        for b in &self.blocks {
-            buf.copy_from_slice(y);
-            b.apply(&buf, y);
-        }
-    }
-
-    /// `y = L x` (identity for an empty cascade).
-    pub fn apply(&mut self, x: &[f64], y: &mut [f64]) {
-        if self.spans.is_empty() || x.is_empty() {
-            y.copy_from_slice(x);
-            return;
-        }
-        let (poles, z, prev) = (&self.poles, &mut self.z, &mut self.prev);
-        for (n, (&xn, o)) in x.iter().zip(y.iter_mut()).enumerate() {
-            let mut v = xn;
-            for (b, &(s, e, d)) in self.spans.iter().enumerate() {
-                let mut out = d * v;
-                if n == 0 {
-                    for (f, zp) in poles[s..e].iter().zip(&mut z[s..e]) {
-                        *zp = f.init * v;
-                        out += (f.g * *zp).re;
-                    }
-                } else {
-                    let vp = prev[b];
-                    for (f, zp) in poles[s..e].iter().zip(&mut z[s..e]) {
-                        *zp = f.a * *zp + f.b0 * vp + f.b1 * v;
-                        out += (f.g * *zp).re;
-                    }
-                }
-                prev[b] = v;
-                v = out;
-            }
-            *o = v;
-        }
-    }
-
-    /// `x = Lᵀ w`: the blocks' adjoints in reverse order (fused, backwards in time; see
-    /// [`Lti::adjoint`]).
-    pub fn adjoint(&mut self, w: &[f64], x: &mut [f64]) {
-        if self.spans.is_empty() || w.is_empty() {
-            x.copy_from_slice(w);
-            return;
-        }
-        let (poles, g_next) = (&self.poles, &mut self.z);
-        g_next.iter_mut().for_each(|g| *g = C::new(0.0, 0.0));
-        for m in (0..w.len()).rev() {
-            let mut v = w[m];
-            for &(s, e, d) in self.spans.iter().rev() {
-                let mut out = d * v;
-                for (f, gn) in poles[s..e].iter().zip(&mut g_next[s..e]) {
-                    let gm = f.g * v + f.a * *gn;
-                    let mut t = f.b0 * *gn;
-                    t += if m == 0 { f.init * gm } else { f.b1 * gm };
-                    out += t.re;
-                    *gn = gm;
-                }
-                v = out;
-            }
-            x[m] = v;
-        }
-    }
-}
 
 /// The per-sample regression of the interpolated model in Everett coordinates: sample
 /// t's row is `(1 − λ_t) r_a + λ_t r_b` (plus 1 for the offset), with `r_a`, `r_b` the
@@ -634,6 +424,11 @@ impl Behind {
         Ok(Behind { grid, u: u.to_vec(), rows, pre, last: None })
     }
 
+    /// Input samples per output sample (the averaging window).
+    pub fn stride(&self) -> usize {
+        self.rows.stride
+    }
+
     /// Number of output samples (averaged windows): the length of targets and columns.
     pub fn n_samples(&self) -> usize {
         self.rows.n_out()
@@ -682,7 +477,7 @@ impl Behind {
     pub fn solve(
         &mut self,
         z: &[f64],
-        lti: &mut Cascade,
+        lti: &mut Filter,
         terms: &Terms,
         tol: f64,
         max_iter: usize,
@@ -725,7 +520,7 @@ impl Behind {
             }
         };
         // y = L(B x + Σ a pre) + Σ b post
-        let forward = |x: &[f64], rows: &mut SampleRows, lti: &mut Cascade, s1: &mut [f64], y: &mut [f64]| {
+        let forward = |x: &[f64], rows: &mut SampleRows, lti: &mut Filter, s1: &mut [f64], y: &mut [f64]| {
             rows.forward(&x[..nh], s1);
             for (k, c) in terms.pre.iter().enumerate() {
                 let a = x[nh + k];
@@ -738,7 +533,7 @@ impl Behind {
             }
         };
         // g = adjoint of the forward map applied to v (already weighted)
-        let adjoint = |v: &[f64], rows: &mut SampleRows, lti: &mut Cascade, s1: &mut [f64], g: &mut [f64]| {
+        let adjoint = |v: &[f64], rows: &mut SampleRows, lti: &mut Filter, s1: &mut [f64], g: &mut [f64]| {
             for (k, c) in terms.post.iter().enumerate() {
                 g[nh + kp + k] = dot(c, v);
             }
@@ -754,7 +549,7 @@ impl Behind {
         weigh(&mut s2);
         adjoint(&s2, rows, lti, &mut s1, &mut b);
         let normal =
-            |x: &[f64], out: &mut [f64], rows: &mut SampleRows, lti: &mut Cascade, s1: &mut [f64], s2: &mut [f64]| {
+            |x: &[f64], out: &mut [f64], rows: &mut SampleRows, lti: &mut Filter, s1: &mut [f64], s2: &mut [f64]| {
                 forward(x, rows, lti, s1, s2);
                 weigh(s2);
                 adjoint(s2, rows, lti, s1, out);
@@ -776,7 +571,7 @@ impl Behind {
                         r: &mut [f64],
                         ap: &mut [f64],
                         rows: &mut SampleRows,
-                        lti: &mut Cascade,
+                        lti: &mut Filter,
                         s1: &mut [f64],
                         s2: &mut [f64]| {
             normal(x, ap, rows, lti, s1, s2);
@@ -876,7 +671,7 @@ impl Behind {
         &mut self,
         sol: &BehindSolution,
         z: &[f64],
-        lti: &mut Cascade,
+        lti: &mut Filter,
         terms: &Terms,
     ) -> Result<(PreisachModel, Vec<f64>, f64, FitReport)> {
         self.check_terms(z, terms)?;
@@ -995,7 +790,7 @@ pub fn fit_behind(
     u: &[f64],
     z: &[f64],
     omega: Option<&[f64]>,
-    blocks: &[LtiBlock],
+    blocks: &[Lti],
     opts: &BehindOptions,
 ) -> Result<(PreisachModel, BehindReport)> {
     check_signal("u", u)?;
@@ -1003,9 +798,11 @@ pub fn fit_behind(
     if opts.dt <= 0.0 {
         return Err(PreisachError::invalid("dt", format!("must be > 0, got {}", opts.dt)));
     }
-    let mut lti = Cascade::new(blocks, opts.dt)?;
+    let mut lti = Filter::cascade(blocks, opts.dt, Discretization::Foh);
     let mut b = Behind::new(u, opts.n_h, opts.u_range, 1)?;
-    let terms = Terms { omega, pre: &[], post: &[], delay: 0.0 };
+    // A delay commutes with the other blocks: it delays the hysteresis output.
+    let delay = blocks.iter().map(|b| b.delay_s).sum::<f64>() / opts.dt;
+    let terms = Terms { omega, pre: &[], post: &[], delay };
     let sol = b.solve(z, &mut lti, &terms, opts.tol, opts.max_iter, false)?;
     let (model, _, rmse, projection) = b.project(&sol, z, &mut lti, &terms)?;
     let report = BehindReport {

@@ -1,0 +1,463 @@
+//! Linear blocks: one continuous description, sampled three ways.
+//!
+//! A linear block (creep, vibration modes, a low-pass filter, the rate branch) is a
+//! series of [`Section`]s, each given by partial fractions
+//!
+//! ```text
+//!   H(s) = direct + Σ_k r_k / (s − p_k),
+//! ```
+//!
+//! with distinct stable poles (a pole with a non-zero imaginary part stands for itself
+//! and its conjugate), plus a pure delay ([`Lti`]). The series form keeps a block's
+//! factors apart (one section per vibration mode), so a block is easy to turn into a
+//! product or a quotient of factors.
+//!
+//! [`Discretization`] samples a section; every pole then becomes the complex one-pole
+//! recursion `z[n] = a z[n−1] + b0 x[n−1] + b1 x[n]` whose output is `Re(g z[n])`:
+//!
+//! - `Zoh`: the input held over the interval that *ends* at each sample (the output is
+//!   taken after the update, so a step shows at the sample it is applied);
+//! - `Foh`: exact at the samples for an input linear between samples, at any rate;
+//! - `Bilinear`: Tustin's transform prewarped at a frequency (the per-sample low-pass:
+//!   a Butterworth section sampled so equals `scipy.signal.butter(order, fc, fs=fs)`).
+//!
+//! [`Filter`] runs the sampled sections (per sample or over a record, starting at rest
+//! with an input: every state at its steady value) and applies the exact adjoint of
+//! the record pass, which the least-squares fit behind the blocks needs.
+
+use nalgebra::Complex;
+
+use crate::error::{PreisachError, Result};
+
+/// A complex number.
+pub type C = Complex<f64>;
+
+/// One factor of a linear block: `direct + Σ r_k / (s − p_k)`; see the module doc.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Section {
+    direct: f64,
+    poles: Vec<C>,
+    residues: Vec<C>,
+}
+
+impl Section {
+    /// Checks the description once: everything finite, every pole stable (`Re p < 0`),
+    /// a real pole with a real residue. A pole with `Im p < 0` is taken as its conjugate
+    /// (with the conjugate residue); equal poles merge (their residues add), so the
+    /// poles are distinct.
+    pub fn new(direct: f64, terms: impl IntoIterator<Item = (C, C)>) -> Result<Self> {
+        let bad = |problem: String| PreisachError::invalid("section", problem);
+        if !direct.is_finite() {
+            return Err(bad(format!("direct term must be finite, got {direct}")));
+        }
+        let mut poles: Vec<C> = Vec::new();
+        let mut residues: Vec<C> = Vec::new();
+        for (p, r) in terms {
+            if !(p.re.is_finite() && p.im.is_finite() && r.re.is_finite() && r.im.is_finite()) {
+                return Err(bad(format!("pole {p} and residue {r} must be finite")));
+            }
+            if p.re >= 0.0 {
+                return Err(bad(format!("pole {p} is not stable (its real part must be < 0)")));
+            }
+            if p.im == 0.0 && r.im != 0.0 {
+                return Err(bad(format!("the real pole {p} needs a real residue, got {r}")));
+            }
+            let (p, r) = if p.im < 0.0 { (p.conj(), r.conj()) } else { (p, r) };
+            match poles.iter().position(|&q| q == p) {
+                Some(k) => residues[k] += r,
+                None => {
+                    poles.push(p);
+                    residues.push(r);
+                }
+            }
+        }
+        Ok(Section { direct, poles, residues })
+    }
+
+    /// A gain (no poles).
+    pub fn gain(k: f64) -> Result<Self> {
+        Section::new(k, [])
+    }
+
+    pub fn direct(&self) -> f64 {
+        self.direct
+    }
+    /// One pole of each conjugate pair.
+    pub fn poles(&self) -> &[C] {
+        &self.poles
+    }
+    pub fn residues(&self) -> &[C] {
+        &self.residues
+    }
+
+    /// `H(s)`.
+    pub fn at(&self, s: C) -> C {
+        let mut h = C::new(self.direct, 0.0);
+        for (&p, &r) in self.poles.iter().zip(&self.residues) {
+            h += r / (s - p);
+            if p.im != 0.0 {
+                h += r.conj() / (s - p.conj());
+            }
+        }
+        h
+    }
+
+    /// The static gain `H(0)`.
+    pub fn dc_gain(&self) -> f64 {
+        self.at(C::new(0.0, 0.0)).re
+    }
+}
+
+/// A linear block: sections in series, then a pure delay (seconds, >= 0).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Lti {
+    pub sections: Vec<Section>,
+    pub delay_s: f64,
+}
+
+impl Lti {
+    /// Sections in series, no delay.
+    pub fn series(sections: Vec<Section>) -> Self {
+        Lti { sections, delay_s: 0.0 }
+    }
+
+    /// A pure delay.
+    pub fn delay(delay_s: f64) -> Self {
+        Lti { sections: Vec::new(), delay_s }
+    }
+
+    /// `self` then `other`.
+    pub fn then(mut self, other: Lti) -> Self {
+        self.sections.extend(other.sections);
+        self.delay_s += other.delay_s;
+        self
+    }
+
+    /// Frequency response at `f_hz` (the analog block, delay included).
+    pub fn response(&self, f_hz: f64) -> C {
+        let w = std::f64::consts::TAU * f_hz;
+        let s = C::new(0.0, w);
+        let h = self.sections.iter().fold(C::new(1.0, 0.0), |h, sec| h * sec.at(s));
+        h * C::from_polar(1.0, -w * self.delay_s)
+    }
+
+    /// The static gain.
+    pub fn dc_gain(&self) -> f64 {
+        self.sections.iter().map(Section::dc_gain).product()
+    }
+}
+
+/// How a section is sampled; see the module doc.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Discretization {
+    Zoh,
+    Foh,
+    /// Tustin's transform with the frequency `prewarp_hz` mapped exactly (it must lie
+    /// below Nyquist).
+    Bilinear {
+        prewarp_hz: f64,
+    },
+}
+
+/// How a chain is sampled: per sample (`Zoh`: the simulator and the sample loop; its
+/// low-pass filters use Tustin's transform) or over records (`Foh`: predictions and
+/// fits, exact for inputs linear between samples at any rate).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sampling {
+    Zoh,
+    Foh,
+}
+
+impl Sampling {
+    /// The discretization of a block sampled the plain way (all but a per-sample
+    /// low-pass).
+    pub fn plain(self) -> Discretization {
+        match self {
+            Sampling::Zoh => Discretization::Zoh,
+            Sampling::Foh => Discretization::Foh,
+        }
+    }
+}
+
+/// One sampled pole: `z[n] = a z[n−1] + b0 x[n−1] + b1 x[n]`, output `Re(g z[n])`;
+/// `init` is the state at rest per unit input (`−1/p`).
+#[derive(Debug, Clone, Copy)]
+struct Pole {
+    a: C,
+    b0: C,
+    b1: C,
+    g: C,
+    init: C,
+}
+
+/// `(e^x − 1)/x` and `(e^x − 1 − x)/x²`, by their series where the closed forms cancel.
+fn phi12(x: C) -> (C, C) {
+    if x.norm() < 1e-4 {
+        (1.0 + x / 2.0 + x * x / 6.0, 0.5 + x / 6.0 + x * x / 24.0)
+    } else {
+        let em1 = x.exp() - 1.0;
+        (em1 / x, (em1 - x) / (x * x))
+    }
+}
+
+impl Pole {
+    fn new(p: C, r: C, dt: f64, d: Discretization) -> Self {
+        let g = if p.im != 0.0 { 2.0 * r } else { r };
+        let init = -1.0 / p;
+        let pt = p * dt;
+        match d {
+            Discretization::Zoh => {
+                let (phi1, _) = phi12(pt);
+                Pole { a: pt.exp(), b0: C::new(0.0, 0.0), b1: dt * phi1, g, init }
+            }
+            Discretization::Foh => {
+                // Exact integrals of e^{p(T−τ)} against the hold's two ramps.
+                let (phi1, phi2) = phi12(pt);
+                let (i0, i1) = (dt * phi1, dt * phi2);
+                Pole { a: pt.exp(), b0: i0 - i1, b1: i1, g, init }
+            }
+            Discretization::Bilinear { prewarp_hz } => {
+                let w = std::f64::consts::TAU * prewarp_hz;
+                let k = w / (0.5 * w * dt).tan();
+                let b = 1.0 / (k - p);
+                Pole { a: (k + p) * b, b0: b, b1: b, g, init }
+            }
+        }
+    }
+}
+
+/// Sampled sections in series with their state: the per-sample recursion, the record
+/// pass from rest and its exact adjoint. Never allocates after construction.
+#[derive(Debug, Clone)]
+pub struct Filter {
+    poles: Vec<Pole>,
+    /// Per section: poles `start..end` and the direct term.
+    spans: Vec<(usize, usize, f64)>,
+    z: Vec<C>,
+    /// Per section: its previous input.
+    prev: Vec<f64>,
+    settled: bool,
+}
+
+impl Filter {
+    /// The sections of `lti` sampled every `dt` seconds (its delay is not part of a
+    /// filter: see `DelayLine`).
+    pub fn new(lti: &Lti, dt: f64, d: Discretization) -> Self {
+        Filter::of_sections(&lti.sections, dt, d)
+    }
+
+    /// Several blocks in series (the cascade of a fit).
+    pub fn cascade(ltis: &[Lti], dt: f64, d: Discretization) -> Self {
+        let sections: Vec<Section> = ltis.iter().flat_map(|l| l.sections.iter().cloned()).collect();
+        Filter::of_sections(&sections, dt, d)
+    }
+
+    fn of_sections(sections: &[Section], dt: f64, d: Discretization) -> Self {
+        let mut poles = Vec::new();
+        let mut spans = Vec::with_capacity(sections.len());
+        for s in sections {
+            let start = poles.len();
+            poles.extend(s.poles.iter().zip(&s.residues).map(|(&p, &r)| Pole::new(p, r, dt, d)));
+            spans.push((start, poles.len(), s.direct));
+        }
+        let (np, ns) = (poles.len(), spans.len());
+        Filter { poles, spans, z: vec![C::new(0.0, 0.0); np], prev: vec![0.0; ns], settled: false }
+    }
+
+    /// Whether the filter has no sections (the identity).
+    pub fn is_identity(&self) -> bool {
+        self.spans.is_empty()
+    }
+
+    /// Every state at rest with the constant input `x`; returns the output then.
+    pub fn settle(&mut self, x: f64) -> f64 {
+        let mut v = x;
+        for (k, &(s, e, d)) in self.spans.iter().enumerate() {
+            self.prev[k] = v;
+            let mut out = d * v;
+            for (f, z) in self.poles[s..e].iter().zip(&mut self.z[s..e]) {
+                *z = f.init * v;
+                out += (f.g * *z).re;
+            }
+            v = out;
+        }
+        self.settled = true;
+        v
+    }
+
+    /// One sample. The first sample after construction or [`Filter::reset`] finds the
+    /// filter at rest with it.
+    #[inline]
+    pub fn step(&mut self, x: f64) -> f64 {
+        if !self.settled {
+            return self.settle(x);
+        }
+        let mut v = x;
+        for (k, &(s, e, d)) in self.spans.iter().enumerate() {
+            let vp = self.prev[k];
+            let mut out = d * v;
+            for (f, z) in self.poles[s..e].iter().zip(&mut self.z[s..e]) {
+                *z = f.a * *z + f.b0 * vp + f.b1 * v;
+                out += (f.g * *z).re;
+            }
+            self.prev[k] = v;
+            v = out;
+        }
+        v
+    }
+
+    /// Back to rest: the next sample settles the filter.
+    pub fn reset(&mut self) {
+        self.settled = false;
+    }
+
+    /// `y = L x` over a record, starting at rest with `x[0]` (the sections fused in one
+    /// pass: the recursions are latency-bound, and independent ones in one loop overlap).
+    pub fn apply(&mut self, x: &[f64], y: &mut [f64]) {
+        self.reset();
+        for (o, &v) in y.iter_mut().zip(x) {
+            *o = self.step(v);
+        }
+    }
+
+    /// `x = Lᵀ w`: the exact adjoint of [`Filter::apply`] (the at-rest start included),
+    /// the sections' adjoints in reverse order, backwards in time.
+    pub fn adjoint(&mut self, w: &[f64], x: &mut [f64]) {
+        if self.spans.is_empty() {
+            x.copy_from_slice(w);
+            return;
+        }
+        // G[m] = Σ_{k >= m} a^{k−m} g w[k]; x[m] gets b1 G[m] (m >= 1), b0 G[m+1]
+        // (m <= n−2) and init G[0] (m = 0).
+        let (poles, g_next) = (&self.poles, &mut self.z);
+        g_next.iter_mut().for_each(|g| *g = C::new(0.0, 0.0));
+        for m in (0..w.len()).rev() {
+            let mut v = w[m];
+            for &(s, e, d) in self.spans.iter().rev() {
+                let mut out = d * v;
+                for (f, gn) in poles[s..e].iter().zip(&mut g_next[s..e]) {
+                    let gm = f.g * v + f.a * *gn;
+                    let mut t = f.b0 * *gn;
+                    t += if m == 0 { f.init * gm } else { f.b1 * gm };
+                    out += t.re;
+                    *gn = gm;
+                }
+                v = out;
+            }
+            x[m] = v;
+        }
+        self.settled = false;
+    }
+}
+
+/// Largest delay accepted, in samples (keeps the ring buffer at most 128 MB).
+pub const MAX_DELAY_SAMPLES: f64 = 16_000_000.0;
+
+/// A pure delay `y[n] = x(n − D)`, `D` samples: an integer ring buffer plus linear
+/// interpolation for the fractional part (exact for an input linear between samples).
+/// At rest, the line holds the first input (the signal held it before the record).
+#[derive(Debug, Clone)]
+pub struct DelayLine {
+    buf: Vec<f64>,
+    mask: usize,
+    head: usize,
+    n_int: usize,
+    frac: f64,
+    settled: bool,
+}
+
+impl DelayLine {
+    /// `delay_s` (>= 0, checked by the caller) at `sample_rate_hz`.
+    pub fn new(delay_s: f64, sample_rate_hz: f64) -> Result<Self> {
+        let d = delay_s * sample_rate_hz;
+        if d > MAX_DELAY_SAMPLES {
+            return Err(PreisachError::invalid(
+                "delay_s",
+                format!("{delay_s} s is {d:.0} samples, above the limit of {MAX_DELAY_SAMPLES:.0}"),
+            ));
+        }
+        let mut n_int = d.floor() as usize;
+        let mut frac = d - n_int as f64;
+        // Snap delays within rounding of an integer (e.g. 3e-5 s · 1e5 Hz) to it.
+        if frac > 1.0 - 1e-9 {
+            n_int += 1;
+            frac = 0.0;
+        } else if frac < 1e-9 {
+            frac = 0.0;
+        }
+        // Power-of-two length: the index wraps with a mask, no division per sample.
+        let len = (n_int + 2).next_power_of_two();
+        Ok(DelayLine { buf: vec![0.0; len], mask: len - 1, head: 0, n_int, frac, settled: false })
+    }
+
+    /// Delay in samples (integer + fractional part).
+    pub fn samples(&self) -> f64 {
+        self.n_int as f64 + self.frac
+    }
+
+    /// Fill the line with `x`.
+    pub fn settle(&mut self, x: f64) -> f64 {
+        self.buf.iter_mut().for_each(|v| *v = x);
+        self.settled = true;
+        x
+    }
+
+    #[inline]
+    pub fn step(&mut self, x: f64) -> f64 {
+        if !self.settled {
+            self.settle(x);
+        }
+        self.head = (self.head + 1) & self.mask;
+        self.buf[self.head] = x;
+        let a = self.buf[(self.head.wrapping_sub(self.n_int)) & self.mask];
+        let b = self.buf[(self.head.wrapping_sub(self.n_int + 1)) & self.mask];
+        a + self.frac * (b - a)
+    }
+
+    /// Back to rest: the next sample fills the line.
+    pub fn reset(&mut self) {
+        self.head = 0;
+        self.settled = false;
+    }
+}
+
+/// A linear block at run time: its sampled sections, then its delay line.
+#[derive(Debug, Clone)]
+pub struct Linear {
+    filter: Filter,
+    delay: Option<DelayLine>,
+}
+
+impl Linear {
+    pub fn new(lti: &Lti, sample_rate_hz: f64, d: Discretization) -> Result<Self> {
+        let filter = Filter::new(lti, 1.0 / sample_rate_hz, d);
+        let delay = DelayLine::new(lti.delay_s, sample_rate_hz)?;
+        let delay = if delay.samples() > 0.0 { Some(delay) } else { None };
+        Ok(Linear { filter, delay })
+    }
+
+    #[inline]
+    pub fn step(&mut self, x: f64) -> f64 {
+        let y = self.filter.step(x);
+        match &mut self.delay {
+            Some(d) => d.step(y),
+            None => y,
+        }
+    }
+
+    /// At rest with `x`; returns the output then.
+    pub fn settle(&mut self, x: f64) -> f64 {
+        let y = self.filter.settle(x);
+        match &mut self.delay {
+            Some(d) => d.settle(y),
+            None => y,
+        }
+    }
+
+    pub fn reset(&mut self) {
+        self.filter.reset();
+        if let Some(d) = &mut self.delay {
+            d.reset();
+        }
+    }
+}
