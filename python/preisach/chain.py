@@ -122,13 +122,6 @@ def _check_finite(d: Any) -> None:
     _dumps(d, "chain")
 
 
-def _time_and_input(t: ArrayLike, u: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    tt, uu = as_signal("t", t), as_signal("u", u)
-    if tt.shape != uu.shape:
-        raise ValueError(f"u: length {uu.size} does not match t (length {tt.size})")
-    return tt, uu
-
-
 def _opt_float(name: str, x: Optional[float]) -> Optional[float]:
     if x is None:
         return None
@@ -174,8 +167,8 @@ class Chain:
         return c
 
     @classmethod
-    def from_blocks(cls, blocks: Any, sample_rate_hz: Optional[float] = None,
-                    initial_input: Optional[float] = None) -> "Chain":
+    def from_blocks(cls: type[_C], blocks: Any, sample_rate_hz: Optional[float] = None,
+                    initial_input: Optional[float] = None) -> _C:
         """A chain of ``blocks`` (dicts with a ``"type"`` key, see the module doc; a
         version-1 stage's block fields are read too)."""
         text = _blocks_json(blocks)
@@ -259,15 +252,20 @@ class Chain:
         increasing and regular; the rate is taken from ``t``, and ``t`` is the absolute
         time drift uses). Noise and quantizers are off; linear blocks are exact for an
         input linear between samples. ``initial_input`` overrides the chain's own."""
-        tt, uu = _time_and_input(t, u)
-        return self._core.predict(tt, uu, _opt_float("initial_input", initial_input))  # type: ignore[no-any-return]
+        return self._record(self._core.predict, t, u, initial_input)
 
     def simulate(self, t: ArrayLike, u: ArrayLike, initial_input: Optional[float] = None) -> NDArray[np.float64]:
         """The simulated measurement of input ``u`` at times ``t``: sample by sample at
         the rate of ``t`` (input held over each sample interval), with noise (from its
         seeds) and quantization. A fresh run from rest every call."""
-        tt, uu = _time_and_input(t, u)
-        return self._core.simulate(tt, uu, _opt_float("initial_input", initial_input))  # type: ignore[no-any-return]
+        return self._record(self._core.simulate, t, u, initial_input)
+
+    @staticmethod
+    def _record(run: Any, t: ArrayLike, u: ArrayLike, initial_input: Optional[float]) -> NDArray[np.float64]:
+        tt, uu = as_signal("t", t), as_signal("u", u)
+        if tt.shape != uu.shape:
+            raise ValueError(f"u: length {uu.size} does not match t (length {tt.size})")
+        return run(tt, uu, _opt_float("initial_input", initial_input))  # type: ignore[no-any-return]
 
     def response(self, f_hz: ArrayLike) -> NDArray[np.complex128]:
         """Frequency response of the chain's linear blocks (creep, vibration, lowpass,
@@ -324,7 +322,7 @@ class Chain:
         return cls._wrap(_preisach.Chain.from_json(text))
 
     @classmethod
-    def from_dict(cls, d: Any, source: str = "chain") -> "Chain":
+    def from_dict(cls: type[_C], d: Any, source: str = "chain") -> _C:
         """A chain from a dict of any chain, model or stage file; errors name ``source``."""
         if not isinstance(d, Mapping):
             raise ValueError(f"corrupt {source}: expected a JSON object")
@@ -332,14 +330,14 @@ class Chain:
             _check_finite(d)
             return cls._wrap(_preisach.Chain.from_json(_dumps(d, "chain")))
         except ValueError as exc:
-            raise ValueError(f"{source}: {exc}" if source != "chain" else str(exc)) from None
+            raise ValueError(str(exc) if source in ("chain", "model") else f"{source}: {exc}") from None
 
     def save(self, path: PathLike) -> None:
         """Write the chain as version-2 JSON (atomically)."""
         write_text(path, self.to_json() + "\n")
 
     @classmethod
-    def load(cls, path: PathLike) -> "Chain":
+    def load(cls: type[_C], path: PathLike) -> _C:
         """Read any chain, model or stage file."""
         p = Path(path)
         try:

@@ -48,7 +48,26 @@ impl Chain {
     pub(crate) fn desc(&self) -> &CoreChain {
         &self.desc
     }
+
+    /// A record run (`predict` or `simulate`) without the GIL.
+    fn record<'py>(
+        &self,
+        py: Python<'py>,
+        t: PyReadonlyArray1<'py, f64>,
+        u: PyReadonlyArray1<'py, f64>,
+        initial_input: Option<f64>,
+        run: RecordRun,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        guard(|| {
+            let (t, u) = (slice("t", &t)?, slice("u", &u)?);
+            let y = py.detach(|| run(&self.desc, t, u, initial_input)).map_err(to_py)?;
+            Ok(y.into_pyarray(py))
+        })
+    }
 }
+
+/// `Chain::predict` or `Chain::simulate`.
+type RecordRun = fn(&CoreChain, &[f64], &[f64], Option<f64>) -> Result<Vec<f64>, PreisachError>;
 
 #[pymethods]
 impl Chain {
@@ -213,11 +232,7 @@ impl Chain {
         u: PyReadonlyArray1<'py, f64>,
         initial_input: Option<f64>,
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        guard(|| {
-            let (t, u) = (slice("t", &t)?, slice("u", &u)?);
-            let y = py.detach(|| self.desc.predict(t, u, initial_input)).map_err(to_py)?;
-            Ok(y.into_pyarray(py))
-        })
+        self.record(py, t, u, initial_input, CoreChain::predict)
     }
 
     /// Simulated measurement on the record (t, u) (per sample, noise and quantization).
@@ -229,11 +244,7 @@ impl Chain {
         u: PyReadonlyArray1<'py, f64>,
         initial_input: Option<f64>,
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        guard(|| {
-            let (t, u) = (slice("t", &t)?, slice("u", &u)?);
-            let y = py.detach(|| self.desc.simulate(t, u, initial_input)).map_err(to_py)?;
-            Ok(y.into_pyarray(py))
-        })
+        self.record(py, t, u, initial_input, CoreChain::simulate)
     }
 
     /// Frequency response of the chain's series linear blocks at `f_hz`.

@@ -27,12 +27,13 @@ pub mod lti;
 pub mod presets;
 pub mod rate;
 pub mod rng;
+pub mod runtime;
 pub mod sensor;
 mod v1;
 pub mod vibration;
 
 pub use amplifier::{Amplifier, AmplifierParams};
-pub use chain::{sample_period, Block, BlockSpec, Chain, Runtime, BLOCK_TYPES, CHAIN_VERSION};
+pub use chain::{BlockSpec, Chain, BLOCK_TYPES, CHAIN_VERSION};
 pub use creep::CreepParams;
 pub use drift::DriftParams;
 pub use hysteresis::{
@@ -42,6 +43,7 @@ pub use lti::{Discretization, Filter, Linear, Lti, Sampling, Section};
 pub use presets::{paper, preset, PaperOptions};
 pub use rate::RateParams;
 pub use rng::Rng;
+pub use runtime::{sample_period, Block, Runtime};
 pub use sensor::{DelayParams, LowpassParams, Noise, NoiseParams, Quantizer, QuantizerParams, Sensor, SensorParams};
 pub use v1::{effect_blocks, stage_blocks};
 pub use vibration::{Mode, VibrationParams};
@@ -82,13 +84,17 @@ pub(crate) fn non_negative(name: &str, x: f64) -> Result<f64> {
     Ok(x)
 }
 
-/// A frequency must be finite, > 0 and below Nyquist.
+/// A frequency must be finite, > 0 and below Nyquist (in a per-sample run).
 pub(crate) fn below_nyquist(name: &str, f: f64, fs: f64) -> Result<f64> {
     positive(name, f)?;
     if f >= 0.5 * fs {
         return Err(PreisachError::invalid(
             name,
-            format!("must be below Nyquist ({} Hz) of the run's rate ({fs} Hz), got {f}", 0.5 * fs),
+            format!(
+                "must be below Nyquist ({} Hz) of the run's rate ({fs} Hz) to run per sample, got {f} \
+                 (predict has no such limit)",
+                0.5 * fs
+            ),
         ));
     }
     Ok(f)
