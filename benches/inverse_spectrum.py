@@ -1,4 +1,4 @@
-"""High-frequency content and tracking error of the inverse methods (seed §4.1, Fig. 9).
+"""High-frequency content and tracking error of the inverse methods (the paper §4.1, Fig. 9).
 
 A smooth synthetic model (n_h = 100 on (0, 100): a Gaussian ridge near the diagonal
 plus a diagonal part, the same density as benches/inverse.rs), a 5 Hz sine reference

@@ -246,7 +246,7 @@ def run_loop(model: Any, stage: Stage, reference: ArrayLike, method: str = "cont
         Desired output, in the stage's output units (sensor volts for ``paper``).
     method : {"continuous", "interpolated", "closest", "identity"}
         ``continuous``: exact inverse of the interpolated model (no look-ahead);
-        ``interpolated``: closest match smoothed by linear interpolation (seed Fig. 9),
+        ``interpolated``: closest match smoothed by linear interpolation (the paper's Fig. 9),
         streaming with ``lookahead`` samples of preview (default 2000); the reference
         is fed ahead by that much so ``u`` lines up with it (feed-forward);
         ``closest``: closest match (steps); ``identity``: ``u = reference``.
