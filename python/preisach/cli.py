@@ -15,7 +15,8 @@ import numpy as np
 EXAMPLES = {
     "identify": "example: preisach identify examples/paper_ident.csv --n-h 40 -o model.json",
     "predict": "example: preisach predict model.json examples/paper_ident.csv -o predicted.csv",
-    "invert": "example: preisach invert model.json reference.csv -o input.csv --method interpolated",
+    "invert": "example: preisach invert model.json reference.csv -o input.csv\n"
+              "         preisach invert model.json reference.csv -o input.csv --method interpolated --lookahead 100",
     "simulate": "example: preisach simulate --preset paper input.csv -o measured.csv",
     "diagnose": "example: preisach diagnose train.csv --holdout steps.csv --holdout sine50.csv "
                 "--json report.json --save-model aug.json --plots plots/",

@@ -93,6 +93,8 @@ class PreisachModel:
         levels (``docs/method/fast-paths.md``); it is the forward map the continuous
         inverse inverts.
 
+    Notes
+    -----
     All relays start at −1 (negative saturation) unless a ``state`` is given.
     """
 
@@ -165,9 +167,11 @@ class PreisachModel:
         output : {"stepwise", "interpolated"}
             Which model to fit (see the class docstring).
 
-        Returns a :class:`FittedModel`: the model, with ``.report`` (a
-        :class:`FitReport`). The paper's pitfalls are also emitted as
-        :class:`PreisachWarning`.
+        Returns
+        -------
+        FittedModel
+            The model, with ``.report`` (a :class:`FitReport`). The paper's pitfalls
+            are also emitted as :class:`PreisachWarning`.
         """
         uu = as_signal("u", u)
         yy = as_signal("y", y)

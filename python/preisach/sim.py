@@ -66,6 +66,8 @@ class Stage:
     sample_rate_hz : float
         Sample rate every block is discretized for (default 100 kHz).
 
+    Notes
+    -----
     Bad parameters raise ``ValueError`` naming the parameter and the block.
     Use :meth:`preset` for a ready-made stage and :meth:`from_json` to load one.
     """
@@ -253,7 +255,10 @@ def run_loop(model: Any, stage: Stage, reference: ArrayLike, method: str = "cont
     lookahead : int, optional
         Only for ``interpolated``.
 
-    Returns a :class:`LoopResult`.
+    Returns
+    -------
+    LoopResult
+        The input, output, error and timing of the run.
     """
     if not isinstance(stage, Stage):
         raise ValueError(f"stage: expected a preisach.sim.Stage, got {type(stage).__name__}")

@@ -124,7 +124,10 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
         Candidate fits (and a search's independent trials, while a CPU would otherwise
         idle) run in this many threads (default: up to 2, the CPUs available).
 
-    Returns a :class:`GapReport`.
+    Returns
+    -------
+    GapReport
+        Where the gap lies, which effect causes it, how far it shrinks.
     """
     if workers is None:
         workers = min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
