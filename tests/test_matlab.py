@@ -148,7 +148,7 @@ def test_missing_scipy_is_one_clear_line(tmp_path):
             f"raise SystemExit(main(['import-mat', {str(p)!r}, '--list']))")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert r.returncode == 1
-    assert r.stderr.strip() == "preisach: error: reading .mat files needs SciPy: pip install 'preisach[mat]'"
+    assert r.stderr.strip() == "preisach: error: MAT files need SciPy: pip install 'preisach[mat]'"
 
 
 def test_single_channel_capture_and_mat_v4(tmp_path):
@@ -346,3 +346,14 @@ def test_export_errors_are_one_line(tmp_path, capsys):
     assert main(["export-mat", str(tmp_path / "bad.json"), "-o", str(tmp_path / "no" / "m.mat")]) == 1
     assert capsys.readouterr().err.startswith("preisach: error: -o:")
     assert not (tmp_path / "m.mat").exists()
+
+
+def test_export_without_scipy_is_one_clear_line_before_any_work(tmp_path):
+    code = ("import sys; sys.modules['scipy'] = None; sys.modules['scipy.io'] = None\n"
+            "from preisach.cli import main\n"
+            f"raise SystemExit(main(['export-mat', {str(tmp_path / 'missing.json')!r}, '-o', "
+            f"{str(tmp_path / 'm.mat')!r}]))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1
+    assert r.stderr.strip() == "preisach: error: MAT files need SciPy: pip install 'preisach[mat]'"
+    assert not list(tmp_path.iterdir())

@@ -336,7 +336,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("model", metavar="MODEL", help="a model or chain file (anything predict accepts)")
     s.add_argument("records", metavar="RECORD", nargs="+", help="records with columns t,u,y")
     s.add_argument("--plot", default=None, metavar="FILE.png",
-                   help="draw measured vs model and the residual per record (needs preisach[plot])")
+                   help="draw measured vs model (over time and as a loop) and the residual per record "
+                        "(needs preisach[plot])")
     s.add_argument("--json", default=None, metavar="OUT.json", help="write the figures as JSON")
     s.set_defaults(func=_cmd_compare)
 

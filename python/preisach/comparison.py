@@ -40,13 +40,15 @@ def fit_percent(y: ArrayLike, y_hat: ArrayLike) -> float:
 class Comparison:
     """One record compared with a model: ``name``, ``fit_percent`` (NRMSE fit, see
     :func:`fit_percent`), ``rmse`` and ``max_error`` (largest ``|y - y_hat|``), in the
-    output's units, and the arrays ``t``, ``y`` (measured) and ``y_hat`` (model)."""
+    output's units, and the arrays ``t``, ``u`` (input), ``y`` (measured) and ``y_hat``
+    (model)."""
 
     name: str
     fit_percent: float
     rmse: float
     max_error: float
     t: NDArray[np.float64] = field(repr=False)
+    u: NDArray[np.float64] = field(repr=False)
     y: NDArray[np.float64] = field(repr=False)
     y_hat: NDArray[np.float64] = field(repr=False)
 
@@ -103,7 +105,7 @@ def compare(model: Any, record: Union[PathLike, Mapping[str, ArrayLike]], name: 
         raise ValueError(f"{label}: the model gave {y_hat.size} samples for {y.size}")
     err = y - y_hat
     return Comparison(name=label, fit_percent=fit_percent(y, y_hat), rmse=float(np.sqrt(np.mean(err**2))),
-                      max_error=float(np.abs(err).max()), t=t, y=y, y_hat=y_hat)
+                      max_error=float(np.abs(err).max()), t=t, u=u, y=y, y_hat=y_hat)
 
 
 def table(results: list[Comparison]) -> str:

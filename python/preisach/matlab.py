@@ -45,7 +45,7 @@ from preisach.io import PathLike
 __all__ = ["Channel", "list_channels", "printable", "read_mat", "sample_rate", "select", "write_model_mat"]
 
 #: The one-line hint when SciPy is missing.
-SCIPY_HINT = "reading .mat files needs SciPy: pip install 'preisach[mat]'"
+SCIPY_HINT = "MAT files need SciPy: pip install 'preisach[mat]'"
 
 
 @dataclass(frozen=True)

@@ -133,25 +133,30 @@ def plot_spectra(signals: Mapping[str, ArrayLike], sample_rate_hz: float, path: 
     return _save(fig, path)
 
 
-def plot_compare(results: Sequence[Any], path: PathLike, unit: str = "", title: str = "") -> str:
+def plot_compare(results: Sequence[Any], path: PathLike, input_unit: str = "", output_unit: str = "",
+                 title: str = "") -> str:
     """Measured against model, one row per record (from :func:`preisach.compare`): (a)
-    both over time, titled with the fit in percent and the RMSE, (b) the residual
-    ``y - y_hat``. ``unit`` labels the output axis."""
+    both over time, titled with the fit in percent and the RMSE, (b) both against the
+    input, the hysteresis loop (the paper's Fig. 8), (c) the residual ``y - y_hat``."""
     if not results:
         raise ValueError("results: nothing to plot")
     plt = _plt()
     n = len(results)
-    fig, axes = plt.subplots(n, 2, figsize=(12, 3.2 * n + 0.4 * bool(title)), squeeze=False)
-    lab = f" [{unit}]" if unit else ""
-    for (a, b), r in zip(axes, results):
+    fig, axes = plt.subplots(n, 3, figsize=(15, 3.4 * n + 0.4 * bool(title)), squeeze=False)
+    out = f" [{output_unit}]" if output_unit else ""
+    inp = f" [{input_unit}]" if input_unit else ""
+    for (a, b, c), r in zip(axes, results):
         a.plot(r.t, r.y, "k", lw=0.9, label="measured")
         a.plot(r.t, r.y_hat, "tab:red", lw=0.9, ls="--", label="model")
-        a.set(xlabel="time [s]", ylabel=f"output{lab}", title=f"{r.name}: fit {r.fit_percent:.2f} %, RMSE {r.rmse:.3g}")
+        a.set(xlabel="time [s]", ylabel=f"output{out}", title=f"{r.name}: fit {r.fit_percent:.2f} %, RMSE {r.rmse:.3g}")
         a.legend(loc="best")
-        b.plot(r.t, r.y - r.y_hat, "tab:blue", lw=0.8)
-        b.axhline(0.0, color="k", lw=0.6)
-        b.set(xlabel="time [s]", ylabel=f"residual y - model{lab}", title=f"max |error| {r.max_error:.3g}")
-        for ax in (a, b):
+        b.plot(r.u, r.y, "k", lw=0.7, label="measured")
+        b.plot(r.u, r.y_hat, "tab:red", lw=0.7, ls="--", label="model")
+        b.set(xlabel=f"input{inp}", ylabel=f"output{out}", title="hysteresis loop")
+        c.plot(r.t, r.y - r.y_hat, "tab:blue", lw=0.8)
+        c.axhline(0.0, color="k", lw=0.6)
+        c.set(xlabel="time [s]", ylabel=f"residual y - model{out}", title=f"max |error| {r.max_error:.3g}")
+        for ax in (a, b, c):
             ax.grid(alpha=0.3)
     if title:
         fig.suptitle(title)

@@ -4,18 +4,15 @@ A :class:`Stage` is a chain of blocks (amplifier, hysteresis, creep, vibration, 
 lowpass, delay, noise, quantizer, drift) run one sample at a time in Rust. The
 ``paper`` preset mirrors the stage of Stakvik et al. (2015, §3.1):
 
-=============  ==============================================================
-block          what (units)
-=============  ==============================================================
-quantizer      16-bit DAC, ±10 V (input ``u``: DAC volts; usable 0–7.5 V)
-lowpass        reconstruction filter, 2nd-order Butterworth at 20 kHz
-amplifier      20 V/V, saturation [−30, 180] V (piezo volts)
-hysteresis     parametric Preisach on a 500-level grid, piezo V → µm (0–~40 µm)
-creep          Kelvin–Voigt, 1 % per decade from 0.1 s to 100 s
-vibration      one mode at 780 Hz, damping 0.02 (unit DC gain)
-sensor         1/5 V/µm, 4th-order Butterworth anti-aliasing at 20 kHz, optional
-               4.58e-4 s delay (``delay=True``), 1 nm noise, 16-bit ±10 V ADC
-=============  ==============================================================
+| block | what (units) |
+|---|---|
+| quantizer | 16-bit DAC, ±10 V (input ``u``: DAC volts; usable 0–7.5 V) |
+| lowpass | reconstruction filter, 2nd-order Butterworth at 20 kHz |
+| amplifier | 20 V/V, saturation [−30, 180] V (piezo volts) |
+| hysteresis | parametric Preisach on a 500-level grid, piezo V → µm (0–~40 µm) |
+| creep | Kelvin–Voigt, 1 % per decade from 0.1 s to 100 s |
+| vibration | one mode at 780 Hz, damping 0.02 (unit DC gain) |
+| sensor | 1/5 V/µm, 4th-order anti-aliasing at 20 kHz, 1 nm noise, 16-bit ADC; 4.58e-4 s delay if ``delay=True`` |
 
 The output ``y`` is the sensor voltage (0.2 V per µm).
 
