@@ -62,6 +62,7 @@ def test_npz_records_are_read(tmp_path, record):
     ["identify", "x.csv", "--n-h", "abc", "-o", "m.json"],
     ["nonsense"],
     ["invert", "m.json", "r.csv", "-o", "u.csv", "--method", "magic"],
+    ["invert", "m.json", "r.csv", "-o", "u.csv", "--lookahead", "10"],
 ])
 def test_usage_errors_are_one_line_with_exit_code_2(argv, capsys):
     assert main(argv) == 2

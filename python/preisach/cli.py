@@ -145,6 +145,8 @@ def _cmd_invert(a: argparse.Namespace) -> int:
     from preisach.io import read_record, write_csv
     from preisach.model import PreisachModel
 
+    if a.lookahead is not None and a.method != "interpolated":
+        raise UsageError(f"preisach invert: --lookahead is for --method interpolated, not {a.method} (see --help)")
     model = PreisachModel.load(a.model)
     rec = read_record(a.ref, ["t", "r"])
     u = model.invert(rec["r"], method=a.method, lookahead=a.lookahead)
