@@ -19,6 +19,9 @@ import numpy as np
 
 from preisach import PreisachModel, _preisach
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from machine import describe  # noqa: E402
+
 warnings.simplefilter("ignore")
 
 
@@ -210,6 +213,7 @@ def main() -> None:
     except (AttributeError, ImportError) as exc:  # inversion not built
         rows.append(("closest-match inverse", "n/a", str(exc), ""))
 
+    print(describe() + "\n")
     print("| what | preisach | plain NumPy / SciPy | ratio |")
     print("|---|---|---|---|")
     for r_ in rows:

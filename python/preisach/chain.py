@@ -1,5 +1,5 @@
-"""A model chain: the identified Preisach model followed by plant effects (DESIGN.md,
-"Blocks"), as written by ``preisach diagnose --save-model`` and run by ``preisach
+"""A model chain: the identified Preisach model followed by plant effects
+(``docs/method/blocks.md``), as written by ``preisach diagnose --save-model`` and run by ``preisach
 predict``.
 
 JSON form::

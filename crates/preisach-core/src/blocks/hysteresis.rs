@@ -11,7 +11,7 @@
 //!
 //! Units: input in the operator's input units (piezo volts in the `paper` preset),
 //! output in its output units (µm in the preset). The interpolated output (continuous
-//! in `u`, MATH.md) is the default: a real stage has no steps.
+//! in `u`, `docs/method/fast-paths.md`) is the default: a real stage has no steps.
 
 use std::sync::Arc;
 

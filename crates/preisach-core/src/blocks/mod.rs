@@ -1,4 +1,4 @@
-//! Plant blocks (DESIGN.md "Blocks"): one vocabulary for the simulated stage, an
+//! Plant blocks (`docs/method/blocks.md`): one vocabulary for the simulated stage, an
 //! identified model plus effects, and the diagnoser.
 //!
 //! Each block has parameters (a serde struct, the JSON form), per-sample state,

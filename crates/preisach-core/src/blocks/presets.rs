@@ -1,4 +1,4 @@
-//! Named stages. `paper` mirrors the seed's setup (§3.1, §4.2):
+//! Named stages. `paper` mirrors the paper's setup (§3.1, §4.2):
 //!
 //! | block | what | units |
 //! |---|---|---|

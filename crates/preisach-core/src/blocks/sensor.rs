@@ -1,6 +1,6 @@
 //! Measurement-side blocks: Butterworth low-pass, pure (fractional) delay, white
 //! noise, ADC quantizer, and the [`Sensor`] that chains them behind a gain
-//! (capacitive gauge: 1/5 V/µm in the seed's setup, §3.1). `lowpass`, `delay`,
+//! (capacitive gauge: 1/5 V/µm in the paper's setup, §3.1). `lowpass`, `delay`,
 //! `noise` and `quantizer` are also blocks of their own.
 //!
 //! A record starts at rest: the low-pass and the delay start in equilibrium with the

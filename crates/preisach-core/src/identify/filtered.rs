@@ -1,4 +1,4 @@
-//! Masses fitted behind linear dynamics (DESIGN.md, "Sim-to-real gap diagnosis":
+//! Masses fitted behind linear dynamics (`docs/method/diagnosis.md`:
 //! adding an effect means refitting the hysteresis with it).
 //!
 //! ```text

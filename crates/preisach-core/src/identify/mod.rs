@@ -1,4 +1,4 @@
-//! Identification (seed §3.2–3.3, done exactly): non-negative least squares on the
+//! Identification (the paper §3.2–3.3, done exactly): non-negative least squares on the
 //! masses with a free offset in one QP, over merged rows, with the paper's pitfalls
 //! reported.
 
@@ -344,18 +344,18 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
     }
     if reversals < n_h {
         warnings.push(format!(
-            "only {reversals} input reversals for n_h = {n_h}: fewer than n_h, so not every relay is switched on and off (seed §3.2); use more reversals or a smaller n_h"
+            "only {reversals} input reversals for n_h = {n_h}: fewer than n_h, so not every relay is switched on and off (Stakvik et al. 2015, §3.2); use more reversals or a smaller n_h"
         ));
     }
     if u_max < hi || u_min > lo {
         warnings.push(format!(
-            "the input range [{u_min:.4}, {u_max:.4}] does not exceed the model range [{lo:.4}, {hi:.4}]: border cells are not excited and absorb the offset (seed §3.3, Fig. 7a)"
+            "the input range [{u_min:.4}, {u_max:.4}] does not exceed the model range [{lo:.4}, {hi:.4}]: border cells are not excited and absorb the offset (Stakvik et al. 2015, §3.3, Fig. 7a)"
         ));
     }
     let span = hi - lo;
     if u_max - hi > 0.1 * span || lo - u_min > 0.1 * span {
         warnings.push(format!(
-            "the input range [{u_min:.4}, {u_max:.4}] extends far beyond the model range [{lo:.4}, {hi:.4}]: the end cells absorb everything outside it (seed §3.3, Fig. 7c)"
+            "the input range [{u_min:.4}, {u_max:.4}] extends far beyond the model range [{lo:.4}, {hi:.4}]: the end cells absorb everything outside it (Stakvik et al. 2015, §3.3, Fig. 7c)"
         ));
     }
     let report = FitReport {

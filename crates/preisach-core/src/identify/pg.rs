@@ -1,5 +1,5 @@
 //! The operator-based solver ("gradient") of the identification QP for large n_h
-//! (MATH.md, "Identification without the dense matrix"):
+//! (`docs/method/fast-paths.md`, "Identification without the dense matrix"):
 //!
 //!   minimise  (1/N) Σ_r W_r (a_r·x + o_r c − ỹ_r)²  +  reg · Σ_{neighbours} (x_a − x_b)²
 //!   over scaled masses x >= 0 and a free offset c,

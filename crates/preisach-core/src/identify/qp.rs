@@ -3,7 +3,7 @@
 //!   minimise  (1/N) Σ_r W_r (a_r·x − ȳ_r)²  +  reg · Σ_{neighbouring cells} (w_a − w_b)²
 //!   over masses w >= 0 and a free offset,
 //!
-//! one problem (seed §3.3 alternates lsqnonneg and lsqnonlin; one QP is exact), both
+//! one problem (the paper §3.3 alternates lsqnonneg and lsqnonlin; one QP is exact), both
 //! solved by clarabel's interior point method:
 //! - [`solve_everett`] ("structured"): variables are the Everett values, so the
 //!   objective is sparse (O(depth²) per row) and the masses are second differences
