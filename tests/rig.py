@@ -233,7 +233,7 @@ MID, AMP = 5.0, 4.6
 
 
 def wf_identification(fs: float, f: float = 10.0, periods: int = 50) -> np.ndarray:
-    """The paper's identification input (seed Fig. 6a): a sine of increasing amplitude,
+    """The paper's identification input (the paper, Fig. 6a): a sine of increasing amplitude,
     ``2 periods`` reversals, starting at its lowest point, slightly past the range used."""
     n = int(round(periods / f * fs))
     t = np.arange(n) / fs
