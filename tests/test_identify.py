@@ -76,7 +76,7 @@ def test_solvers_agree_and_match_or_beat_scipy_nnls_on_the_same_rows(rng):
     assert fs["active"] == pytest.approx(fs["clarabel"], rel=1e-7)
 
 
-@settings(max_examples=12, deadline=None)
+@settings(max_examples=25, deadline=None)
 @given(n=st.integers(2, 24), seed=st.integers(0, 2**31), sweep=st.booleans(), relay_grid=st.booleans(),
        noise=st.sampled_from([0.0, 0.01, 0.1]))
 def test_active_solver_reaches_scipy_nnls_optimum_on_random_problems(n, seed, sweep, relay_grid, noise):
@@ -98,7 +98,8 @@ def test_active_solver_reaches_scipy_nnls_optimum_on_random_problems(n, seed, sw
     (A, counts, target, within), f_scipy = _scipy_objective(u, y, n, (0.0, 1.0))
     iu = np.triu_indices(n)
     f = _objective(A, counts, target, within, np.concatenate([m.weights[iu], [m.offset]]))
-    assert f <= f_scipy * (1 + 1e-9) + 1e-15
+    # (Relative to the output's variance where the optimum is an exact fit.)
+    assert f <= f_scipy * (1 + 1e-9) + 1e-10 * np.var(y)
     assert np.all(m.weights >= 0)
     if m.report.solver == "active":  # (it may hand a degenerate problem to the interior point)
         assert m.report.rmse == pytest.approx(np.sqrt(f), rel=1e-9, abs=1e-12)

@@ -258,7 +258,6 @@ pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> R
     let n_q = pb.rows.n_vars();
     let (trip, q) = everett_objective(pb);
     let mut kkt = Kkt::build(pb, trip)?;
-    let kkt = &mut kkt;
     let (n, m) = (kkt.n, kkt.m);
     let dim = n + m;
     let hmax = (0..n).map(|i| kkt.val[kkt.diag[i]]).fold(0.0f64, f64::max);
@@ -283,7 +282,6 @@ pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> R
         _ => pb.zero.to_vec(),
     };
     let mut kval = vec![0.0; kkt.val.len()];
-    let kval = &mut kval;
     let order = kkt.order()?;
     // (Replaced by the first factorization below.)
     let mut fact = None;
@@ -298,9 +296,9 @@ pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> R
         for c in 0..m {
             kkt.set_admm(c, if pb.zero[c] { 1e3 * rho } else { rho });
         }
-        kkt.regularized(kval);
-        let Some(mut f) = factor(kkt, kval, None, &order)? else { return Ok(None) };
-        let z = admm_masses(kkt, &mut f, &q, pb.zero, rho, sigma);
+        kkt.regularized(&mut kval);
+        let Some(mut f) = factor(&kkt, &kval, None, &order)? else { return Ok(None) };
+        let z = admm_masses(&kkt, &mut f, &q, pb.zero, rho, sigma);
         for c in 0..m {
             active[c] = pb.zero[c] || z[c] <= 0.0;
         }
@@ -341,26 +339,26 @@ pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> R
                 changed.len() <= BORDER_MAX
                     && (new as f64) < BORDER_SHARE * refactor_in_solves(f)
                     // (A singular Schur complement: refactor instead.)
-                    && border.update(&changed, &active, kkt, f, eps)
+                    && border.update(&changed, &active, &kkt, f, eps)
             }
             _ => false,
         };
         if !bordered {
-            kkt.regularized(kval);
-            let Some(f) = factor(kkt, kval, Some(&active), &order)? else { return Ok(None) };
+            kkt.regularized(&mut kval);
+            let Some(f) = factor(&kkt, &kval, Some(&active), &order)? else { return Ok(None) };
             fact = Some(f);
             base = Some(active.clone());
             border.clear();
         }
         let Some(fact) = fact.as_mut() else { return Ok(None) };
         v.copy_from_slice(&b);
-        border.solve(kkt, fact, &mut v);
+        border.solve(&kkt, fact, &mut v);
         // Iterative refinement against the unregularized matrix: to 1e-9 while the step
         // is only a guess to correct (the signs decide), to 1e-13 once it satisfies
         // every condition. Where that matrix is singular (Everett values no row
         // observes, masses free), refinement need not contract: keep the best iterate
         // and stop as soon as the residual grows.
-        let mut res = residual(kkt, &b, &v, &mut kv, &mut r);
+        let mut res = residual(&kkt, &b, &v, &mut kv, &mut r);
         let (mut tol_w, mut tol_l): (f64, f64);
         let mut pass = 0;
         let mut stuck = false;
@@ -369,10 +367,10 @@ pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> R
             let target = if tight { 1e-13 } else { 1e-9 } * qmax;
             while res > target && pass < REFINE && !stuck && res.is_finite() {
                 best.copy_from_slice(&v);
-                border.solve(kkt, fact, &mut r);
+                border.solve(&kkt, fact, &mut r);
                 v.iter_mut().zip(&r).for_each(|(x, d)| *x += d);
                 pass += 1;
-                let rn = residual(kkt, &b, &v, &mut kv, &mut r);
+                let rn = residual(&kkt, &b, &v, &mut kv, &mut r);
                 // A NaN must not pass (`rn >= res` is false for it).
                 if rn.is_nan() || rn >= res {
                     v.copy_from_slice(&best);
@@ -710,24 +708,28 @@ mod tests {
         (0..dim).map(|i| (0..dim).map(|j| k[i * dim + j] * x[j]).sum()).collect()
     }
 
-    #[test]
-    fn factor_of_the_active_constraints_solves_their_kkt_system() {
-        let n_h = 9;
+    /// The KKT matrix of the identification problem of `u`, `y` on [0, 1] with n_h
+    /// levels, the Everett values regularized by `eps`.
+    fn test_kkt(n_h: usize, u: &[f64], y: &[f64], eps: f64) -> Kkt {
         let grid = Grid::new(0.0, 1.0, n_h).unwrap();
-        let u: Vec<f64> =
-            (0..5000).map(|k| 0.5 + 0.55 * (k as f64 * 0.0071).sin() * (k as f64 * 0.0003).cos()).collect();
-        let y: Vec<f64> = u.iter().enumerate().map(|(k, x)| x * x + 0.02 * (k as f64 * 0.77).sin()).collect();
-        let rows = build_rows(&grid, &u, &y, false);
+        let rows = build_rows(&grid, u, y, false);
         let zero = vec![false; grid.n_q()];
         let pb = Problem { rows: &rows, mu: 0.5, scale: 1.0, zero: &zero, reg: 0.0 };
         let (trip, _) = everett_objective(&pb);
         let mut kkt = Kkt::build(&pb, trip).unwrap();
-        let (n, m) = (kkt.n, kkt.m);
+        kkt.reg[..kkt.n].fill(eps);
+        kkt
+    }
+
+    #[test]
+    fn factor_of_the_active_constraints_solves_their_kkt_system() {
+        let u: Vec<f64> =
+            (0..5000).map(|k| 0.5 + 0.55 * (k as f64 * 0.0071).sin() * (k as f64 * 0.0003).cos()).collect();
+        let y: Vec<f64> = u.iter().enumerate().map(|(k, x)| x * x + 0.02 * (k as f64 * 0.77).sin()).collect();
         // (Regularized enough to be well conditioned: the residual is then rounding.)
         let eps = 1e-3;
-        for i in 0..n {
-            kkt.reg[i] = eps;
-        }
+        let mut kkt = test_kkt(9, &u, &y, eps);
+        let (n, m) = (kkt.n, kkt.m);
         let order = kkt.order().unwrap();
         let mut kval = vec![0.0; kkt.val.len()];
         for pattern in [0usize, 2, 3, 7] {
@@ -751,8 +753,6 @@ mod tests {
     fn bordered_solve_equals_a_refactorization_after_constraints_switch() {
         // A small noisy identification problem; factor the KKT matrix of one active set,
         // switch some constraints on and some off, and solve both ways.
-        let n_h = 12;
-        let grid = Grid::new(0.0, 1.0, n_h).unwrap();
         let n = 20_000;
         let u: Vec<f64> = (0..n)
             .map(|k| {
@@ -761,17 +761,10 @@ mod tests {
             })
             .collect();
         let y: Vec<f64> = u.iter().enumerate().map(|(k, x)| x * x + 0.01 * (k as f64 * 0.37).cos()).collect();
-        let rows = build_rows(&grid, &u, &y, false);
-        let zero = vec![false; grid.n_q()];
-        let pb = Problem { rows: &rows, mu: 0.5, scale: 1.0, zero: &zero, reg: 0.0 };
-        let (trip, _) = everett_objective(&pb);
-        let mut kkt = Kkt::build(&pb, trip).unwrap();
-        let (nv, m) = (kkt.n, kkt.m);
-        let dim = nv + m;
         let eps = 1e-6;
-        for i in 0..nv {
-            kkt.reg[i] = eps;
-        }
+        let mut kkt = test_kkt(12, &u, &y, eps);
+        let dim = kkt.n + kkt.m;
+        let m = kkt.m;
         let mut active: Vec<bool> = (0..m).map(|c| c % 3 == 0).collect();
         for (c, &a) in active.iter().enumerate() {
             kkt.set(c, a, eps);

@@ -229,14 +229,6 @@ fn clarabel_once(p: &CscMatrix<f64>, q: &[f64], a: &CscMatrix<f64>, cones: &[Sup
 /// offset): upper-triangular Hessian triplets keyed by [`key`] (duplicates to be summed)
 /// and the linear term, for `½ xᵀPx + qᵀx`.
 pub(super) fn everett_objective(pb: &Problem) -> (Vec<(u64, f64)>, Vec<f64>) {
-    let mut trip = Vec::new();
-    let q = everett_objective_into(pb, &mut trip);
-    (trip, q)
-}
-
-/// [`everett_objective`] with the triplets written to `trip` (cleared first; its memory
-/// reused).
-pub(super) fn everett_objective_into(pb: &Problem, trip: &mut Vec<(u64, f64)>) -> Vec<f64> {
     let rows = pb.rows;
     let n_h = rows.n_h;
     let n_q = rows.n_vars();
@@ -244,8 +236,7 @@ pub(super) fn everett_objective_into(pb: &Problem, trip: &mut Vec<(u64, f64)>) -
     let n_total = rows.n_samples as f64;
     // One triplet per pair of entries in a row (the offset included).
     let pairs: usize = rows.indptr.windows(2).map(|w| (w[1] - w[0] + 1) * (w[1] - w[0] + 2) / 2).sum();
-    trip.clear();
-    trip.reserve(pairs);
+    let mut trip = Vec::with_capacity(pairs);
     let mut q = vec![0.0; n];
     let mut ent: Vec<(usize, f64)> = Vec::new();
     for r in 0..rows.n_rows() {
@@ -282,7 +273,7 @@ pub(super) fn everett_objective_into(pb: &Problem, trip: &mut Vec<(u64, f64)>) -
             }
         }
     }
-    q
+    (trip, q)
 }
 
 /// The structured solver: Everett coordinates, sparse objective, masses >= 0 as
