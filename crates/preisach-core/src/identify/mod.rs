@@ -14,7 +14,8 @@ use crate::model::PreisachModel;
 pub use qp::{dense_bytes, Problem, Solution};
 pub use rows::{build_rows, Rows};
 
-/// Largest n_h the structured solver accepts (its sparse factor grows like n_q^1.5).
+/// Largest n_h `fit` accepts: the sparse factors grow like n_q^1.5 (time and memory
+/// measured in `docs/method/identification.md`).
 pub const MAX_N_H_STRUCTURED: usize = 600;
 
 /// `auto` uses the active-set solver up to this many free cells (it needs a handful of

@@ -78,6 +78,10 @@ pub(super) fn csc(m: usize, n: usize, trip: &[Triplet<u32, u32, f64>]) -> Result
 /// sorted, so each column's diagonal is its last entry.
 pub(super) fn csc_upper(n: usize, mut trip: Vec<(u64, f64)>) -> Result<CscMatrix<f64>> {
     trip.extend((0..n).map(|i| (key(i, i), 0.0)));
+    // Sorted by key first (a cheap radix-like sort of plain integers): the constructor's
+    // own per-column sort and its passes then read the triplets in memory order, which
+    // halves its time on millions of them.
+    trip.sort_unstable_by_key(|t| t.0);
     // (The same size and alignment: collected in place, no second copy of the triplets.)
     let trip: Vec<Triplet<u32, u32, f64>> =
         trip.into_iter().map(|(k, v)| Triplet::new((k & 0xffff_ffff) as u32, (k >> 32) as u32, v)).collect();
