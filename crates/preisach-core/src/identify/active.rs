@@ -62,7 +62,7 @@ const ADMM_ALPHA: f64 = 1.6;
 /// The KKT matrix (upper triangle, CSC) with the positions needed to switch a
 /// constraint on or off.
 #[derive(Default)]
-struct Kkt {
+pub(super) struct Kkt {
     n: usize,
     m: usize,
     colptr: Vec<usize>,
@@ -80,7 +80,7 @@ struct Kkt {
 impl Kkt {
     /// The KKT matrix of the objective (its triplets, see [`everett_objective`]) with
     /// every constraint column, all constraints inactive.
-    fn build(pb: &Problem, mut trip: Vec<(u64, f64)>) -> Result<Self> {
+    pub(super) fn build(pb: &Problem, mut trip: Vec<(u64, f64)>) -> Result<Self> {
         let n = pb.rows.n_vars() + 1;
         let m = n - 1;
         // Column n + c: the mass of cell c in Everett values, then the multiplier's
@@ -98,6 +98,12 @@ impl Kkt {
             kkt.set(c, false, 0.0);
         }
         Ok(kkt)
+    }
+
+    /// The objective's Hessian H (upper triangle, CSC): the first n columns.
+    pub(super) fn hessian(&self) -> CscMatrix<f64> {
+        let (n, nnz) = (self.n, self.colptr[self.n]);
+        CscMatrix::new(n, n, self.colptr[..=n].to_vec(), self.rowval[..nnz].to_vec(), self.val[..nnz].to_vec())
     }
 
     /// Fill-reducing elimination order of the KKT matrix. It is computed on the pattern
@@ -255,9 +261,20 @@ impl Kkt {
 /// ones). `Ok(None)` means it did not converge within `max_steps` (use the interior
 /// point instead).
 pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> Result<Option<Solution>> {
-    let n_q = pb.rows.n_vars();
     let (trip, q) = everett_objective(pb);
-    let mut kkt = Kkt::build(pb, trip)?;
+    solve_kkt(pb, Kkt::build(pb, trip)?, &q, start, max_steps)
+}
+
+/// [`solve_active`] from the problem's KKT matrix (all constraints inactive) and the
+/// objective's linear term `q`.
+pub(super) fn solve_kkt(
+    pb: &Problem,
+    mut kkt: Kkt,
+    q: &[f64],
+    start: Option<Vec<bool>>,
+    max_steps: u32,
+) -> Result<Option<Solution>> {
+    let n_q = pb.rows.n_vars();
     let (n, m) = (kkt.n, kkt.m);
     let dim = n + m;
     let hmax = (0..n).map(|i| kkt.val[kkt.diag[i]]).fold(0.0f64, f64::max);
@@ -283,8 +300,6 @@ pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> R
     };
     let mut kval = vec![0.0; kkt.val.len()];
     let order = kkt.order()?;
-    // (Replaced by the first factorization below.)
-    let mut fact = None;
     if warm {
         // Scale of the objective in mass coordinates: a relay column is ±1 like the
         // offset's, so the offset's diagonal is the masses' Hessian diagonal too.
@@ -298,14 +313,13 @@ pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> R
         }
         kkt.regularized(&mut kval);
         let Some(mut f) = factor(&kkt, &kval, None, &order)? else { return Ok(None) };
-        let z = admm_masses(&kkt, &mut f, &q, pb.zero, rho, sigma);
+        let z = admm_masses(&kkt, &mut f, q, pb.zero, rho, sigma);
         for c in 0..m {
             active[c] = pb.zero[c] || z[c] <= 0.0;
         }
         for i in 0..n {
             kkt.reg[i] = eps;
         }
-        fact = Some(f);
     }
     for (c, &a) in active.iter().enumerate() {
         kkt.set(c, a, eps);
@@ -323,7 +337,8 @@ pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> R
     let mut w = vec![0.0; m];
     let mut best_inf = usize::MAX;
     let mut stall = 0;
-    // Active set of the matrix last factored (None: none yet for the active-set steps).
+    // The last factorization and its active set (none yet).
+    let mut fact: Option<Fact> = None;
     let mut base: Option<Vec<bool>> = None;
     let mut border = Border::default();
     for step in 1..=max_steps {
@@ -454,10 +469,11 @@ pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> R
 type Fact = QDLDLFactorisation<f64>;
 
 /// Factor the KKT matrix with values `kval` in the elimination order `order` (pivot k is
-/// index `order[k]`), coupling only the
-/// constraints in `coupled` (all when `None`): an uncoupled constraint's row is
-/// `−ν_c = 0`, so its couplings are left out of the pattern, and a step's factorization
-/// costs what its active constraints' system costs. `None` on a zero or non-finite pivot.
+/// index `order[k]`), coupling only the constraints in `coupled` (all when `None`): an
+/// uncoupled constraint's row is `−ν_c = 0`, so its couplings are left out of the
+/// pattern, and a step's factorization costs what its active constraints' system costs
+/// (QDLDL's symbolic analysis, an elimination tree, is cheap next to it). `None` on a
+/// zero or non-finite pivot.
 fn factor(kkt: &Kkt, kval: &[f64], coupled: Option<&[bool]>, order: &[usize]) -> Result<Option<Fact>> {
     let (n, dim) = (kkt.n, kkt.n + kkt.m);
     let mut colptr = Vec::with_capacity(dim + 1);

@@ -20,6 +20,7 @@ use clarabel::solver::{
 };
 use faer::sparse::{SparseColMat, Triplet};
 
+use super::active::{solve_kkt, Kkt};
 use super::rows::{mass_from_everett, Rows};
 use crate::error::{PreisachError, Result};
 use crate::grid::cell_index;
@@ -77,11 +78,12 @@ pub(super) fn csc(m: usize, n: usize, trip: &[Triplet<u32, u32, f64>]) -> Result
 /// duplicates summed, every diagonal entry present (zero where none is given): rows are
 /// sorted, so each column's diagonal is its last entry.
 pub(super) fn csc_upper(n: usize, mut trip: Vec<(u64, f64)>) -> Result<CscMatrix<f64>> {
-    trip.extend((0..n).map(|i| (key(i, i), 0.0)));
-    // Sorted by key first (a cheap radix-like sort of plain integers): the constructor's
-    // own per-column sort and its passes then read the triplets in memory order, which
-    // halves its time on millions of them.
+    // Sorted by key first (plain integers, in place): the constructor's passes then read
+    // the triplets in memory order, which halves its time on millions of them, and its
+    // per-column sorts find them in order and keep it, so duplicates are summed in this
+    // order. (The diagonal's zeros go last: each ends its column, still in order.)
     trip.sort_unstable_by_key(|t| t.0);
+    trip.extend((0..n).map(|i| (key(i, i), 0.0)));
     // (The same size and alignment: collected in place, no second copy of the triplets.)
     let trip: Vec<Triplet<u32, u32, f64>> =
         trip.into_iter().map(|(k, v)| Triplet::new((k & 0xffff_ffff) as u32, (k >> 32) as u32, v)).collect();
@@ -289,7 +291,14 @@ pub fn solve_everett(pb: &Problem) -> Result<Solution> {
     let (trip, q) = everett_objective(pb);
     let mut d1 = Vec::new();
     let cell_ij = cell_coords(n_h);
-    let p = csc_upper(n, trip)?;
+    // Stepwise rows are polished by the active-set method (below), and one assembly then
+    // serves both methods: the Hessian is the KKT matrix's first n columns.
+    let (p, kkt) = if pb.rows.interpolated {
+        (csc_upper(n, trip)?, None)
+    } else {
+        let kkt = Kkt::build(pb, trip)?;
+        (kkt.hessian(), Some(kkt))
+    };
     // Constraints: fixed cells first (zero cone), then the rest (non-negative cone);
     // A x + s = 0 with A = −D, so s = D x = the masses.
     let mut order: Vec<usize> = (0..n_q).filter(|&c| pb.zero[c]).collect();
@@ -312,8 +321,8 @@ pub fn solve_everett(pb: &Problem) -> Result<Solution> {
         guess[c] |= first.1[r] < first.2[r];
     }
     // (Not for interpolated rows: there it cycles; the clarabel polish is cheaper.)
-    if !pb.rows.interpolated {
-        if let Some(mut sol) = super::active::solve_active(pb, Some(guess), POLISH_STEPS)? {
+    if let Some(kkt) = kkt {
+        if let Some(mut sol) = solve_kkt(pb, kkt, &q, Some(guess), POLISH_STEPS)? {
             sol.iterations += first.3;
             return Ok(sol);
         }
