@@ -27,7 +27,8 @@ pub const ACTIVE_STEPS: u32 = 40;
 /// Which exact solver to use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Solver {
-    /// The structured solver, except for small problems where the dense one is cheap.
+    /// The active-set solver up to [`ACTIVE_AUTO_MAX`] free cells of stepwise rows, else
+    /// the structured one.
     Auto,
     /// Dense QP over the masses (AᵀWA formed), clarabel.
     Clarabel,
