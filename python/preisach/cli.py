@@ -320,7 +320,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--range", type=_range, nargs=2, metavar=("LO", "HI"), default=None,
                    help="model range (default: the input range shrunk by 0.5%% at each end)")
     s.add_argument("--reg", type=float, default=0.0, help="smoothness regularization weight")
+    # ('gradient' stays accepted so that it fails with the library's message naming what to use.)
     s.add_argument("--solver", choices=["auto", "active", "clarabel", "structured", "gradient"], default="auto",
+                   metavar="{auto,active,clarabel,structured}",
                    help="QP solver; all exact, auto picks the fastest for the size (see docs/method/identification.md)")
     s.add_argument("--output-kind", dest="output", choices=["stepwise", "interpolated"], default="stepwise",
                    help="fit the stepwise (paper) or the interpolated (continuous) model")

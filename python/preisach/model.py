@@ -151,17 +151,15 @@ class PreisachModel:
         reg : float
             Smoothness weight: adds ``reg * sum (w_a - w_b)^2`` over neighbouring cells to
             the mean squared residual (both in output units squared). Default 0.
-        solver : {"auto", "active", "clarabel", "structured", "gradient"}
+        solver : {"auto", "active", "clarabel", "structured"}
             All are exact (the same optimum). ``active``: primal–dual active set on the
             sparse Everett-coordinate KKT system, a handful of sparse factorizations
             (fastest for small and mid-size n_h; hands over to ``structured`` if it has
             not settled after 40 steps). ``structured``: clarabel's interior point on the
-            sparse QP in Everett coordinates; never forms the dense matrix.
-            ``clarabel``: clarabel on the dense QP over the masses (AᵀWA formed; a
-            reference, slow beyond a few hundred cells). These three handle n_h <= 600.
-            ``gradient``: projected gradient / conjugate gradients with A and Aᵀ applied
-            through the Everett table, for any n_h that fits in memory; it stops on a
-            work cap on large problems and then warns that the fit is approximate.
+            sparse QP in Everett coordinates, polished to the exact optimum; never forms
+            the dense matrix. ``clarabel``: clarabel on the dense QP over the masses
+            (AᵀWA formed; a reference, slow beyond a few hundred cells). All handle
+            n_h <= 600.
             ``auto``: ``active`` up to 2000 free cells, else ``structured``.
             ``report.solver`` says which ran.
         output : {"stepwise", "interpolated"}

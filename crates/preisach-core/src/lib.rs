@@ -9,6 +9,7 @@
 //! - [`identify`]: exact non-negative least squares identification (the paper §3.2–3.3).
 //!
 //! No Python here: the bindings live in `crates/preisach-py`.
+#![forbid(unsafe_code)]
 
 pub mod error;
 pub mod everett;
@@ -16,7 +17,6 @@ pub mod grid;
 pub mod identify;
 pub mod memory;
 pub mod model;
-mod pair;
 pub mod relay_grid;
 
 pub use error::{PreisachError, Result};
