@@ -1,4 +1,4 @@
-"""Blind validation of ``preisach.diagnose`` (GitHub issue 5).
+"""Blind validation of ``preisach.diagnose``.
 
 Draws simulated stages with one effect, two effects or none (random parameters in
 realistic ranges), runs the diagnoser on a training record and holdouts without

@@ -8,7 +8,6 @@ claims are ratios measured back to back in the same process.
 from __future__ import annotations
 
 import json
-import os
 import statistics
 import subprocess
 import sys
@@ -18,6 +17,9 @@ import warnings
 import numpy as np
 
 from preisach import PreisachModel, _preisach
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from machine import describe  # noqa: E402
 
 warnings.simplefilter("ignore")
 
@@ -144,29 +146,15 @@ def main() -> None:
     reps = [PreisachModel.fit(u40, y40, n, u_range=rng).report for _ in range(21)]
     t_solve = float(np.median([r.time_solve_s for r in reps]))
     t_rows = float(np.median([r.time_rows_s for r in reps]))
-    # The solve splits its factorizations over two threads; the same on one thread
-    # (own process: the setting is read once).
-    code = (
-        "import json, sys, numpy as np\n"
-        "sys.path.insert(0, %r)\n"
-        "from compare import record_40\n"
-        "from preisach import PreisachModel\n"
-        "u, y, rng = record_40()\n"
-        "ts = [PreisachModel.fit(u, y, 40, u_range=rng).report.time_solve_s for _ in range(21)]\n"
-        "print(json.dumps({'t': float(np.median(ts))}))\n"
-    ) % (sys.path[0] or ".")
-    env = dict(os.environ, PREISACH_NUM_THREADS="1")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env).stdout
-    t_solve1 = json.loads(out)["t"]
     m40 = PreisachModel.fit(u40, y40, n, u_range=rng)
     iu = np.triu_indices(n)
     x_us = np.concatenate([m40.weights[iu], [m40.offset]])
     obj = lambda x: (float(counts @ (A @ x - target) ** 2) + within) / counts.sum()
     rows.append((f"identify n_h = 40 ({u40.size} samples, {A.shape[0]} rows), solver {m40.report.solver!r}",
-                 f"solve {t_solve * 1e3:.1f} ms on two threads, {t_solve1 * 1e3:.1f} ms on one "
-                 f"(+ rows {t_rows * 1e3:.1f} ms; whole fit {t_us * 1e3:.1f} ms), MSE {obj(x_us):.6e}",
+                 f"solve {t_solve * 1e3:.1f} ms (+ rows {t_rows * 1e3:.1f} ms; whole fit {t_us * 1e3:.1f} ms), "
+                 f"MSE {obj(x_us):.6e}",
                  f"scipy.optimize.nnls on the merged rows {t_sp * 1e3:.0f} ms, MSE {obj(x_sp):.6e}",
-                 f"solve {t_sp / t_solve:.0f}x ({t_sp / t_solve1:.0f}x on one thread), whole fit "
+                 f"solve {t_sp / t_solve:.0f}x, whole fit "
                  f"{t_sp / t_us:.0f}x faster; objective ratio {obj(x_us) / obj(x_sp):.9f}"))
 
     # The plain way (the paper's lsqnonneg): one row per sample, relay states from the
@@ -210,6 +198,7 @@ def main() -> None:
     except (AttributeError, ImportError) as exc:  # inversion not built
         rows.append(("closest-match inverse", "n/a", str(exc), ""))
 
+    print(describe() + "\n")
     print("| what | preisach | plain NumPy / SciPy | ratio |")
     print("|---|---|---|---|")
     for r_ in rows:

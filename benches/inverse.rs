@@ -1,4 +1,4 @@
-//! Inverse per-sample cost (seed §4.1) through the batch API, per method and n_h.
+//! Inverse per-sample cost (the paper §4.1) through the batch API, per method and n_h.
 //!
 //! Model: a smooth density (Gaussian ridge near the diagonal plus a diagonal part) on
 //! (0, 100). References, 1 s at 100 kHz: `sine` = 5 Hz reaching 10–90 % of the output

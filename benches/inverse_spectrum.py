@@ -1,4 +1,4 @@
-"""High-frequency content and tracking error of the inverse methods (seed §4.1, Fig. 9).
+"""High-frequency content and tracking error of the inverse methods (the paper §4.1, Fig. 9).
 
 A smooth synthetic model (n_h = 100 on (0, 100): a Gaussian ridge near the diagonal
 plus a diagonal part, the same density as benches/inverse.rs), a 5 Hz sine reference
@@ -14,9 +14,14 @@ Prints a Markdown table per model: with the diagonal part, and without it. Usage
 """
 from __future__ import annotations
 
+import os
+import sys
 import time
 
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from machine import describe  # noqa: E402
 
 import preisach
 from preisach._inverse import invert as invert_with_info
@@ -93,6 +98,7 @@ def table(diagonal: float | None) -> None:
 
 
 def main() -> None:
+    print(describe() + "\n")
     # With the diagonal part (the issue's model) and without any diagonal mass.
     table(2.0)
     print()

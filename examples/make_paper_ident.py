@@ -1,5 +1,5 @@
 """Regenerate ``paper_ident.csv``: the paper's identification input (an increasing-
-amplitude sine with 100 reversals, seed §3.2, Fig. 6a) run through the simulated
+amplitude sine with 100 reversals, the paper §3.2, Fig. 6a) run through the simulated
 ``paper`` stage at 100 kHz (which starts at rest), kept at 10 kHz. Columns t [s], u [DAC V], y [sensor V]."""
 from __future__ import annotations
 

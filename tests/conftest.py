@@ -7,7 +7,7 @@ import pytest
 
 def relay_grid_predict(weights: np.ndarray, lo: float, hi: float, offset: float, u: np.ndarray,
                        state: np.ndarray | None = None) -> np.ndarray:
-    """Plain relay grid (seed eq. 1 and 4): every relay explicit, thresholds at cell centres."""
+    """Plain relay grid (the paper's eq. 1 and 4): every relay explicit, thresholds at cell centres."""
     n = weights.shape[0]
     d = (hi - lo) / n
     thr = lo + (np.arange(n) + 0.5) * d

@@ -55,7 +55,7 @@ def test_records_are_readable_and_consistent(demo):
     assert ident["t"].size > 10_000
     assert np.allclose(np.diff(ident["t"]), 1e-5)
     # The identification input stays in the paper stage's usable DAC range and has
-    # at least 100 reversals (seed §4.2: "an input with 100 reversals").
+    # at least 100 reversals (the paper §4.2: "an input with 100 reversals").
     u = ident["u"]
     assert -0.1 <= u.min() and u.max() <= 7.6
     d = np.diff(u)
@@ -168,3 +168,19 @@ def test_demo_usage_error_is_one_line_exit_2(capsys):
     assert main(["demo", "--bogus"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--bogus" in err
+
+
+def test_no_plots_does_not_talk_about_matplotlib(tmp_path, capsys):
+    assert main(["demo", "--quick", "--no-plots", "--out", str(tmp_path / "o")]) == 0
+    cap = capsys.readouterr()
+    report = (tmp_path / "o" / "report.md").read_text(encoding="utf-8")
+    assert "matplotlib" not in cap.out + cap.err + report
+    assert "Plots were skipped, as asked." in report
+    assert not list((tmp_path / "o").rglob("*.png"))
+
+
+def test_demo_out_that_cannot_be_created_fails_before_any_work(tmp_path, capsys):
+    (tmp_path / "f").write_text("x")
+    assert main(["demo", "--quick", "--out", str(tmp_path / "f" / "o")]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("preisach: error: --out:") and err.count("\n") == 1

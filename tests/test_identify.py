@@ -6,7 +6,9 @@ import warnings
 
 import numpy as np
 import pytest
-from conftest import forc_input, random_weights, smooth_weights, sweep_input
+from conftest import forc_input, random_weights, relay_grid_predict, smooth_weights, sweep_input
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from preisach import PreisachModel, PreisachWarning, _preisach
 
@@ -17,6 +19,18 @@ def _objective(A, counts, target, within, x, n_samples=None):
     r = A @ x - target
     n = counts.sum() if n_samples is None else n_samples
     return (float(counts @ r**2) + within) / n
+
+
+def _scipy_objective(u, y, n, rng_):
+    """The optimum of SciPy's NNLS on the merged rows (offset split into two
+    non-negative columns, rows scaled by the square root of their count)."""
+    from scipy.optimize import nnls
+
+    A, counts, target, within = _preisach.regression_rows(u, y, n, rng_)
+    sw = np.sqrt(counts)[:, None]
+    A2 = np.hstack([A, -A[:, -1:]]) * sw
+    x, _ = nnls(A2, target * sw[:, 0], maxiter=50 * A2.shape[1])
+    return (A, counts, target, within), _objective(A, counts, target, within, np.concatenate([x[:-2], [x[-2] - x[-1]]]))
 
 
 def test_identification_recovers_known_masses_and_offset_noise_free(rng):
@@ -45,29 +59,62 @@ def test_sweep_with_n_h_reversals_identifies_a_smooth_model():
 
 
 def test_solvers_agree_and_match_or_beat_scipy_nnls_on_the_same_rows(rng):
-    from scipy.optimize import nnls
-
     n = 12
     truth = PreisachModel(random_weights(rng, n), (0, 1))
     u = np.clip(np.cumsum(rng.normal(0, 0.08, 6000)) % 1.4 - 0.2, -0.2, 1.2)
     y = truth.predict(u) + rng.normal(0, 0.05, u.size)
-    A, counts, target, within = _preisach.regression_rows(u, y, n, (0.0, 1.0))
-    # SciPy: offset split into two non-negative columns, rows scaled by sqrt(count).
-    sw = np.sqrt(counts)[:, None]
-    A2 = np.hstack([A, -A[:, -1:]]) * sw
-    x, _ = nnls(A2, target * sw[:, 0], maxiter=50 * A2.shape[1])
-    x_scipy = np.concatenate([x[:-2], [x[-2] - x[-1]]])
-    f_scipy = _objective(A, counts, target, within, x_scipy)
+    (A, counts, target, within), f_scipy = _scipy_objective(u, y, n, (0.0, 1.0))
     iu = np.triu_indices(n)
     fs = {}
     for solver in ["active", "clarabel", "structured"]:
-        m = PreisachModel.fit(u, y, n, u_range=(0.0, 1.0), solver=solver)
+        with pytest.warns(PreisachWarning, match="far beyond"):  # the input spans -0.2 .. 1.2 on purpose
+            m = PreisachModel.fit(u, y, n, u_range=(0.0, 1.0), solver=solver)
         xm = np.concatenate([m.weights[iu], [m.offset]])
         fs[solver] = _objective(A, counts, target, within, xm)
         assert fs[solver] <= f_scipy * (1 + 1e-9)
         assert m.report.rmse == pytest.approx(np.sqrt(fs[solver]), rel=1e-9)
     assert fs["clarabel"] == pytest.approx(fs["structured"], rel=1e-7)
     assert fs["active"] == pytest.approx(fs["clarabel"], rel=1e-7)
+
+
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(2, 24), seed=st.integers(0, 2**31), sweep=st.booleans(), relay_grid=st.booleans(),
+       noise=st.sampled_from([0.0, 0.01, 0.1]))
+def test_active_solver_reaches_scipy_nnls_optimum_on_random_problems(n, seed, sweep, relay_grid, noise):
+    """The active-set solver (its sparse LDLᵀ steps) against SciPy's NNLS on the same rows:
+    random n_h, masses, inputs (sweeps or random walks) and noise, the data from the
+    project's model or from the independent NumPy relay grid."""
+    rng = np.random.default_rng(seed)
+    w = random_weights(rng, n, zeros=rng.uniform(0.0, 0.6))
+    offset = float(rng.normal())
+    if sweep:
+        u = sweep_input(0.0, 1.0, int(rng.integers(n, 3 * n + 2)), 3000)
+    else:
+        u = np.clip(np.cumsum(rng.normal(0, 0.06, 3000)) % 1.4 - 0.2, -0.2, 1.2)
+    y = relay_grid_predict(w, 0.0, 1.0, offset, u) if relay_grid else PreisachModel(w, (0, 1), offset=offset).predict(u)
+    y = y + rng.normal(0, noise, u.size)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = PreisachModel.fit(u, y, n, u_range=(0.0, 1.0), solver="active")
+    (A, counts, target, within), f_scipy = _scipy_objective(u, y, n, (0.0, 1.0))
+    iu = np.triu_indices(n)
+    f = _objective(A, counts, target, within, np.concatenate([m.weights[iu], [m.offset]]))
+    # (Relative to the output's variance where the optimum is an exact fit.)
+    assert f <= f_scipy * (1 + 1e-9) + 1e-10 * np.var(y)
+    assert np.all(m.weights >= 0)
+    if m.report.solver == "active":  # (it may hand a degenerate problem to the interior point)
+        assert m.report.rmse == pytest.approx(np.sqrt(f), rel=1e-9, abs=1e-12)
+
+
+def test_cli_names_what_to_use_for_the_removed_gradient_solver(tmp_path, capsys):
+    from preisach.cli import main
+
+    u = sweep_input(0.0, 1.0, 10, 500)
+    rec = tmp_path / "r.csv"
+    np.savetxt(rec, np.c_[np.arange(u.size) * 1e-3, u, u], delimiter=",", header="t,u,y", comments="")
+    assert main(["identify", str(rec), "--n-h", "5", "--solver", "gradient", "-o", str(tmp_path / "m.json")]) == 1
+    err = capsys.readouterr().err
+    assert "'gradient' has been removed; use 'auto'" in err and len(err.strip().splitlines()) == 1
 
 
 def test_merged_rows_are_exact():
@@ -81,8 +128,6 @@ def test_merged_rows_are_exact():
     # Expand back: every sample's row is its state's row.
     x = rng.random(A.shape[1])
     # The per-sample objective through the relay grid definition (R = ±1).
-    from conftest import relay_grid_predict
-
     W = np.zeros((n, n))
     W[np.triu_indices(n)] = x[:-1]
     pred = relay_grid_predict(W, 0.0, 1.0, x[-1], u)
@@ -115,7 +160,7 @@ def test_default_range_sits_slightly_inside_the_input_range():
 def test_pitfalls_are_warned_and_reported():
     u = sweep_input(0.0, 1.0, 6, 3000)
     y = u**2
-    with pytest.warns(PreisachWarning, match="reversals"):
+    with pytest.warns(PreisachWarning, match="does not exceed"), pytest.warns(PreisachWarning, match="reversals"):
         m = PreisachModel.fit(u, y, 20, u_range=(-0.5, 1.5))
     assert m.report.reversals < 20
     assert m.report.cells_never_excited > 0
@@ -132,8 +177,10 @@ def test_pitfalls_are_warned_and_reported():
     (dict(u=[0.0, 1.0], y=[0.0, 1.0], n_h=0), "n_h: must be >= 1"),
     (dict(u=[0.0, 1.0], y=[0.0, 1.0], n_h=3, u_range=(1.0, 0.0)), "u_range: lo must be below hi"),
     (dict(u=[0.0, 1.0], y=[0.0, 1.0], n_h=1_000_000), "n_h: .*too large"),
+    (dict(u=[0.0, 1.0], y=[0.0, 1.0], n_h=601), "n_h: 601 is too large .*n_h <= 600"),
     (dict(u=[0.0, 1.0], y=[0.0, 1.0], n_h=3, reg=-1.0), "reg"),
     (dict(u=[0.0, 1.0], y=[0.0, 1.0], n_h=3, solver="magic"), "solver"),
+    (dict(u=[0.0, 1.0], y=[0.0, 1.0], n_h=3, solver="gradient"), "solver: 'gradient' has been removed; use 'auto'"),
     (dict(u=[1.0, 1.0], y=[0.0, 1.0], n_h=3), "u: input is constant"),
 ])
 def test_bad_fit_input_raises_valueerror_naming_the_argument(kwargs, match):

@@ -1,4 +1,4 @@
-"""Inversion (seed §4.1): closest match against a relay-grid oracle, the Fig. 9
+"""Inversion (the paper §4.1): closest match against a relay-grid oracle, the Fig. 9
 interpolation against an independent NumPy implementation, streaming vs offline,
 snapshots, the continuous inverse, boundary validation."""
 from __future__ import annotations
@@ -41,7 +41,7 @@ def _reference(m, n: int, seed: int, beyond: float = 0.0) -> np.ndarray:
 # --- closest match ----------------------------------------------------------------
 
 def test_closest_match_is_optimal_along_its_path_against_the_relay_grid():
-    # Oracle: explicit relays (seed eq. 1, 4), every level tried on a copy of the state.
+    # Oracle: explicit relays (the paper's eq. 1, 4), every level tried on a copy of the state.
     n, lo, hi, off = 7, -1.0, 2.0, -0.4
     rng = np.random.default_rng(3)
     w = random_weights(rng, n, zeros=0.5)
@@ -122,7 +122,7 @@ def _interp_oracle(u_cm: np.ndarray, lookahead: int | None) -> np.ndarray:
 
 
 def _monotone_oracle(m, r: np.ndarray) -> np.ndarray:
-    """The monotone closest match on explicit relays (seed eq. 1, 4): every level tried
+    """The monotone closest match on explicit relays (the paper's eq. 1, 4): every level tried
     on a copy of the relay states; allowed are the levels at or above the current one
     when the reference rises, at or below when it falls, only the current one when it is
     constant; the least error among them, ties to the level nearest the current one."""

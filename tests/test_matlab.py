@@ -148,7 +148,7 @@ def test_missing_scipy_is_one_clear_line(tmp_path):
             f"raise SystemExit(main(['import-mat', {str(p)!r}, '--list']))")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert r.returncode == 1
-    assert r.stderr.strip() == "preisach: error: reading .mat files needs SciPy: pip install 'preisach[mat]'"
+    assert r.stderr.strip() == "preisach: error: MAT files need SciPy: pip install 'preisach[mat]'"
 
 
 def test_single_channel_capture_and_mat_v4(tmp_path):
@@ -162,3 +162,199 @@ def test_single_channel_capture_and_mat_v4(tmp_path):
     sio.savemat(p4, {"t": T.reshape(-1, 1), "u": U.reshape(-1, 1), "y": Y.reshape(-1, 1)}, format="4")
     rec = read_mat(p4, t="t", u="u", y="y")
     np.testing.assert_array_equal(rec["y"], Y)
+
+
+# --- real captures: lost characters, the capture's sample period, pipes -------------------
+
+LOST = "P\x86drag"  # "Pådrag" whose "å" (0x86 in the capture's code page) became a C1 control byte
+
+
+def _capture(path, names, data, t, period=None, downsampling=1):
+    cap = _dspace_struct(names=names, data=data)
+    X = np.zeros((1,), dtype=[("Name", "O"), ("Type", "O"), ("Data", "O"), ("Unit", "O")])
+    X[0] = ("Time", "Time", t, "s")
+    cap["X"] = X
+    if period is not None:
+        cap["Capture"] = {"SamplingPeriod": period, "Downsampling": downsampling, "Length": t.size}
+    sio.savemat(path, {"trace_1": cap})
+    return path
+
+
+@pytest.fixture
+def lost_mat(tmp_path):
+    names = (f"Model Root/Ctrl/{LOST}", f"Model Root/Plant/{LOST}", "Model Root/Plant/y_sensor")
+    return _capture(tmp_path / "lost.mat", names, (U, 2 * U, Y), T)
+
+
+def test_list_prints_printable_names(lost_mat, capsys):
+    assert main(["import-mat", str(lost_mat), "--list"]) == 0
+    out = capsys.readouterr().out
+    assert all(c.isprintable() for line in out.splitlines() for c in line)
+    assert "Model Root/Ctrl/P?drag" in out and "Model Root/Plant/P?drag" in out
+
+
+@pytest.mark.parametrize("typed", ["Model Root/Ctrl/Pådrag", "model root/ctrl/PADRAG", "Model Root/Ctrl/Pdrag",
+                                   "Model Root/Ctrl/P?drag", "Ctrl/Pådrag", "ctrl/pdrag", f"Model Root/Ctrl/{LOST}"])
+def test_a_name_with_a_lost_character_matches_what_a_user_types(lost_mat, typed):
+    rec = read_mat(lost_mat, u=typed, y="y_sensor")
+    np.testing.assert_array_equal(rec["u"], U)
+
+
+def test_a_leaf_shared_by_two_paths_is_ambiguous_and_lists_printable_names(lost_mat, capsys):
+    assert main(["import-mat", str(lost_mat), "--u", "Pådrag", "-o", "x.csv"]) == 1
+    err = capsys.readouterr().err
+    assert "ambiguous" in err and "1:Model Root/Ctrl/P?drag" in err and "2:Model Root/Plant/P?drag" in err
+    assert all(c.isprintable() for c in err.strip())
+
+
+def test_printable_and_fold_rules():
+    from preisach.matlab import printable
+
+    assert printable("a\x00b\x1fc\x7fd\x86e\u200bf") == "a?b?c?d?e?f"
+    assert printable("Pådrag µm") == "Pådrag µm"
+
+
+@pytest.mark.parametrize("period, down", [(1e-4, 1), (5e-5, 2)])
+def test_the_sample_rate_comes_from_the_captures_own_period(tmp_path, capsys, period, down):
+    # X.Data in single precision from t0 = 100 s: its spacing reads as 9.92e-5 or 1.07e-4 s.
+    t32 = (100.0 + np.arange(N) * 1e-4).astype(np.float32)
+    assert abs(1.0 / np.median(np.diff(t32.astype(np.float64))) - 1e4) > 50
+    p = _capture(tmp_path / "c.mat", ("Plant/u", "Plant/y"), (U, Y), t32, period=period, downsampling=down)
+    o = tmp_path / "r.csv"
+    assert main(["import-mat", str(p), "--u", "u", "--y", "y", "-o", str(o)]) == 0
+    assert "10000 Hz" in capsys.readouterr().out
+    rec = read_record(o, ["t", "u", "y"])
+    np.testing.assert_allclose(rec["t"], 100.0 + np.arange(N) * 1e-4, rtol=0, atol=1e-12)
+
+
+def test_a_time_axis_that_disagrees_with_the_period_is_kept_as_stored(tmp_path):
+    t = np.concatenate([T[:200], T[200:] + 0.5])  # a gap of 0.5 s
+    p = _capture(tmp_path / "gap.mat", ("Plant/u",), (U,), t, period=1e-4)
+    np.testing.assert_array_equal(read_mat(p, u="u")["t"], t)
+
+
+def test_without_a_period_the_rate_is_the_mean_spacing(tmp_path, capsys):
+    t = T + 1e-7 * np.random.default_rng(0).standard_normal(N)  # jittered stamps
+    p = _capture(tmp_path / "j.mat", ("Plant/u",), (U,), t)
+    assert main(["import-mat", str(p), "--u", "u", "-o", str(tmp_path / "r.csv")]) == 0
+    rate = float(capsys.readouterr().out.split(", ")[-1].split()[0])
+    assert rate == pytest.approx((N - 1) / (t[-1] - t[0]), rel=1e-5)
+
+
+@pytest.mark.parametrize("argv, err", [
+    (["--u", "1", "--y", "1"], "--y: channel 1 ('Model Root/Plant/u_dac') is already --u"),
+    (["--u", "u_dac", "--y", "Model Root/Plant/u_dac"], "--y: channel 1"),
+    (["--u", "1", "--y", "2", "--t", "1"], "--t: channel 1"),
+])
+def test_one_channel_for_two_columns_is_rejected(dspace_mat, tmp_path, capsys, argv, err):
+    assert main(["import-mat", str(dspace_mat), *argv, "-o", str(tmp_path / "x.csv")]) == 1
+    assert err in capsys.readouterr().err
+    assert not (tmp_path / "x.csv").exists()
+
+
+def test_a_closed_pipe_ends_the_listing_quietly(tmp_path):
+    """`preisach import-mat FILE --list | head`: the reader goes away; no traceback, and
+    the shell's code for SIGPIPE."""
+    p = tmp_path / "many.mat"
+    sio.savemat(p, {f"channel_with_a_long_name_{i:04d}": U[:50] for i in range(3000)})
+    with subprocess.Popen([sys.executable, "-m", "preisach", "import-mat", str(p), "--list"],
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE) as proc:
+        assert proc.stdout is not None and proc.stderr is not None
+        proc.stdout.close()  # the reader is gone before the first line
+        err = proc.stderr.read().decode()
+        assert proc.wait(timeout=120) == 141
+    assert err == ""
+
+
+# --- models to MATLAB ------------------------------------------------------------------
+
+def _relay_loop(S, u):
+    """The MATLAB loop of docs/guide/matlab.md, line for line in NumPy (1-based
+    indices become 0-based): cell centres as thresholds, all relays -1 at the start."""
+    n = int(S["n_h"].item())
+    lo, hi = S["u_range"].ravel()
+    offset = S["offset"].item()
+    d = (hi - lo) / n
+    thr = lo + (np.arange(1, n + 1) - 0.5) * d
+    B, A = np.meshgrid(thr, thr, indexing="ij")  # ndgrid: beta down the rows, alpha across
+    R = -np.ones((n, n))
+    W = np.triu(S["weights"])
+    y = np.zeros(u.size)
+    for k in range(u.size):
+        R[u[k] >= A] = 1
+        R[u[k] < B] = -1
+        y[k] = np.sum(W * R) + offset
+    return y
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_exported_matrices_run_in_the_documented_matlab_loop_reproduce_predict(tmp_path, seed):
+    from conftest import random_weights
+
+    from preisach import PreisachModel
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 16))
+    lo = float(rng.uniform(-5, 5))
+    hi = lo + float(rng.uniform(0.1, 10))
+    model = PreisachModel(random_weights(rng, n, zeros=0.3), (lo, hi), offset=float(rng.normal()))
+    model.save(tmp_path / "m.json")
+    assert main(["export-mat", str(tmp_path / "m.json"), "-o", str(tmp_path / "m.mat")]) == 0
+    S = sio.loadmat(tmp_path / "m.mat")
+    assert S["weights"].shape == (n, n) and S["levels"].shape == (1, n + 1)
+    np.testing.assert_array_equal(S["weights"], model.weights)
+    np.testing.assert_array_equal(S["levels"].ravel(), model.levels)
+    assert S["u_range"].ravel().tolist() == [lo, hi] and S["offset"].item() == model.offset
+    assert str(S["output"][0]) == "stepwise"
+    u = np.concatenate([[lo - 1], rng.uniform(lo - 0.2 * (hi - lo), hi + 0.2 * (hi - lo), 300)])
+    np.testing.assert_allclose(_relay_loop(S, u), model.predict(u), rtol=0, atol=1e-10)
+
+
+def test_the_documented_matlab_loop_is_the_one_tested():
+    from pathlib import Path
+
+    doc = Path(__file__).resolve().parents[1] / "docs" / "guide" / "matlab.md"
+    text = doc.read_text(encoding="utf-8")
+    for line in ("thr = S.u_range(1) + ((1:n) - 0.5) * d;", "[B, A] = ndgrid(thr, thr);", "R = -ones(n);",
+                 "R(u(k) >= A) = 1;", "R(u(k) < B) = -1;", "y(k) = sum(W(:) .* R(:)) + S.offset;"):
+        assert line in text, line
+
+
+def test_a_chain_exports_its_hysteresis_and_its_blocks(tmp_path, capsys):
+    from conftest import smooth_weights
+
+    from preisach import Chain, PreisachModel
+
+    model = PreisachModel(smooth_weights(6), (0, 10), 0.5, "interpolated")
+    chain = Chain(model, {"delay": {"delay_s": 2e-4}, "vibration": {"frequency_hz": 780.0, "damping": 0.02}})
+    chain.save(tmp_path / "c.json")
+    assert main(["export-mat", str(tmp_path / "c.json"), "-o", str(tmp_path / "c.mat")]) == 0
+    out = capsys.readouterr().out
+    assert "chain" in out and "delay" in out and "vibration" in out
+    S = sio.loadmat(tmp_path / "c.mat", squeeze_me=True, struct_as_record=False)
+    np.testing.assert_array_equal(S["weights"], model.weights)
+    assert S["output"] == "interpolated"
+    blocks = {b.type: b for b in S["chain"].blocks}
+    assert blocks["delay"].delay_s == 2e-4 and blocks["vibration"].modes.frequency_hz == 780.0
+    assert "hysteresis" not in blocks
+
+
+def test_export_errors_are_one_line(tmp_path, capsys):
+    (tmp_path / "bad.json").write_text("{")
+    assert main(["export-mat", str(tmp_path / "bad.json"), "-o", str(tmp_path / "m.mat")]) == 1
+    err = capsys.readouterr().err
+    assert "bad.json" in err and "not JSON" in err
+    assert main(["export-mat", str(tmp_path / "bad.json"), "-o", str(tmp_path / "no" / "m.mat")]) == 1
+    assert capsys.readouterr().err.startswith("preisach: error: -o:")
+    assert not (tmp_path / "m.mat").exists()
+
+
+def test_export_without_scipy_is_one_clear_line_before_any_work(tmp_path):
+    code = ("import sys; sys.modules['scipy'] = None; sys.modules['scipy.io'] = None\n"
+            "from preisach.cli import main\n"
+            f"raise SystemExit(main(['export-mat', {str(tmp_path / 'missing.json')!r}, '-o', "
+            f"{str(tmp_path / 'm.mat')!r}]))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1
+    assert r.stderr.strip() == "preisach: error: MAT files need SciPy: pip install 'preisach[mat]'"
+    assert not list(tmp_path.iterdir())

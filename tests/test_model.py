@@ -220,8 +220,8 @@ def test_truncated_json_is_rejected(tmp_path):
     ((np.full((3, 3), np.nan), (0, 1)), "weights"),
     ((np.triu(-np.ones((3, 3))), (0, 1)), "weights: negative"),
     ((np.ones((3, 2)), (0, 1)), "weights: expected a square"),
-    ((np.ones((3, 3)), (1, 1)), "u_range: lo must be below hi"),
-    ((np.ones((3, 3)), (0, np.inf)), "u_range: must be finite"),
+    ((np.triu(np.ones((3, 3))), (1, 1)), "u_range: lo must be below hi"),
+    ((np.triu(np.ones((3, 3))), (0, np.inf)), "u_range: must be finite"),
     ((np.ones((0, 0)), (0, 1)), "n_h"),
 ])
 def test_bad_model_arguments_raise_valueerror_naming_them(args, match):
@@ -238,3 +238,62 @@ def test_bad_predict_input_names_the_first_bad_index():
     with pytest.raises(ValueError, match="u: expected a 1-D"):
         m.predict(np.zeros((2, 2)))
     assert m.predict([]).shape == (0,)
+
+
+def test_a_mass_below_the_diagonal_is_an_error_naming_the_first():
+    with pytest.raises(ValueError, match=r"weights: entry \[1, 0\] = 1 lies below the diagonal"):
+        PreisachModel(np.ones((5, 5)), (0, 1))
+    w = np.triu(np.ones((4, 4)))
+    w[3, 1] = 0.5
+    w[2, 0] = -1e-300  # any non-zero value, however small
+    with pytest.raises(ValueError, match=r"entry \[2, 0\] = -1e-300"):
+        PreisachModel(w, (0, 1))
+
+
+def test_fit_returns_a_model_with_its_report():
+    from preisach import FitReport, FittedModel
+
+    u = np.linspace(0, 1, 200) * np.sin(np.linspace(0, 60, 200)) + 0.5
+    m = PreisachModel.fit(u, u**2, 4)
+    assert isinstance(m, FittedModel) and isinstance(m, PreisachModel)
+    assert isinstance(m.report, FitReport)
+    assert PreisachModel(m.weights, m.u_range).report is None
+
+
+def test_read_record_is_public():
+    import preisach
+    import preisach.io
+
+    assert preisach.read_record is preisach.io.read_record
+    assert "read_record" in preisach.__all__ and "compare" in preisach.__all__ and "plots" in preisach.__all__
+
+
+TYPED = '''
+import numpy as np
+from numpy.typing import NDArray
+from typing_extensions import assert_type
+
+from preisach import FitReport, PreisachModel
+from preisach._inverse import InversionInfo, Inverter, invert
+
+u = np.linspace(0.0, 1.0, 10)
+m = PreisachModel.fit(u, u, 3)
+assert_type(m.report, FitReport)
+assert_type(m.predict(u), NDArray[np.float64])
+y, state = m.predict(u, return_state=True)
+assert_type(y, NDArray[np.float64])
+assert_type(state, NDArray[np.float64])
+assert_type(m.invert(u), NDArray[np.float64])
+assert_type(m.inverter("continuous"), Inverter)
+assert_type(m.inverter("continuous").step(0.5), float)
+assert_type(invert(m, u, return_info=True)[1], InversionInfo)
+print(m.report.rmse + 1.0)
+'''
+
+
+def test_mypy_sees_real_return_types(tmp_path):
+    api = pytest.importorskip("mypy.api")
+    (tmp_path / "typed.py").write_text(TYPED)
+    out, err, code = api.run([str(tmp_path / "typed.py"), "--strict", "--no-incremental",
+                              "--cache-dir", str(tmp_path / "cache")])
+    assert code == 0, out + err

@@ -7,17 +7,23 @@ Rust core (``preisach._preisach``) with a thin Python API:
   ``save`` / ``load``;
 - :class:`Chain`: blocks in series (a stage, a model, a model plus effects), with
   ``predict`` / ``simulate`` on records; :func:`load` reads any model, chain or stage file;
+- :func:`read_record`: a record (CSV ``t,u,y`` or ``.npz``) as arrays;
+- :func:`compare`: a model's fit on a record (fit %, RMSE, max error), as MATLAB's
+  ``compare``; :mod:`preisach.plots` draws it;
 - :mod:`preisach.sim`: the plant simulator (:class:`~preisach.sim.Stage`) and the
   100 kHz sample loop;
-- :func:`diagnose`: where the sim-to-real gap lies and which effect causes it.
+- :func:`diagnose`: where the sim-to-real gap lies and which effect causes it;
+- :mod:`preisach.matlab`: dSPACE / MATLAB captures in, models out as MAT files.
 """
 from __future__ import annotations
 
+from preisach import plots, sim
 from preisach._preisach import __version__
-from preisach.model import FitReport, PreisachModel, PreisachWarning, Stream
-from preisach import sim
 from preisach.chain import Chain, load
+from preisach.comparison import Comparison, compare, fit_percent
 from preisach.diagnose import GapReport, diagnose
+from preisach.io import read_record
+from preisach.model import FitReport, FittedModel, PreisachModel, PreisachWarning, Stream
 
-__all__ = ["Chain", "FitReport", "GapReport", "PreisachModel", "PreisachWarning", "Stream", "__version__",
-           "diagnose", "load", "sim"]
+__all__ = ["Chain", "Comparison", "FitReport", "FittedModel", "GapReport", "PreisachModel", "PreisachWarning",
+           "Stream", "__version__", "compare", "diagnose", "fit_percent", "load", "plots", "read_record", "sim"]

@@ -1,4 +1,4 @@
-"""Inversion of the Preisach model for hysteresis compensation (seed §4.1).
+"""Inversion of the Preisach model for hysteresis compensation (the paper §4.1).
 
 Three methods, all starting from negative saturation (every relay -1, input ``lo``):
 
@@ -50,7 +50,7 @@ from __future__ import annotations
 
 import numbers
 from dataclasses import dataclass
-from typing import Any, Optional
+from typing import Any, Literal, Optional, Union, overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -114,6 +114,16 @@ def _as_signal(name: str, x: ArrayLike) -> NDArray[np.float64]:
     return a
 
 
+@overload
+def invert(model: Any, r: ArrayLike, method: str = "closest", lookahead: Optional[int] = None, *,
+           return_info: Literal[False] = False) -> NDArray[np.float64]: ...
+
+
+@overload
+def invert(model: Any, r: ArrayLike, method: str = "closest", lookahead: Optional[int] = None, *,
+           return_info: Literal[True]) -> tuple[NDArray[np.float64], InversionInfo]: ...
+
+
 def invert(
     model: Any,
     r: ArrayLike,
@@ -121,7 +131,7 @@ def invert(
     lookahead: Optional[int] = None,
     *,
     return_info: bool = False,
-) -> Any:
+) -> Union[NDArray[np.float64], tuple[NDArray[np.float64], InversionInfo]]:
     """Invert ``model`` over a whole reference ``r`` (the input that makes the model
     output follow ``r``), starting from negative saturation.
 
@@ -236,7 +246,8 @@ class Inverter:
     def state(self, s: dict[str, Any]) -> None:
         if not isinstance(s, dict):
             raise ValueError(f"state: expected a dict from Inverter.state, got {type(s).__name__}")
-        missing = {"method", "lookahead", "memory", "saturated", "t", "u_prev", "last_cm", "knot_t", "knot_v", "r_prev"} - set(s)
+        keys = {"method", "lookahead", "memory", "saturated", "t", "u_prev", "last_cm", "knot_t", "knot_v", "r_prev"}
+        missing = keys - set(s)
         if missing:
             raise ValueError(f"state: missing keys {sorted(missing)}")
         if s["method"] != self._method or s["lookahead"] != self._lookahead:

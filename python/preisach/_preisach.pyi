@@ -1,13 +1,15 @@
 """Type stubs of the compiled module `preisach._preisach` (checked by mypy.stubtest)."""
 from typing import Any, Optional
 
-from typing_extensions import final
-
 import numpy as np
 from numpy.typing import NDArray
+from typing_extensions import final
 
 __version__: str
-__all__ = ["__version__", "Model", "Stream", "fit", "fit_behind", "Behind", "regression_rows", "invert", "InverseStream", "Chain", "run_loop", "sample_period"]
+__all__ = [
+    "__version__", "Model", "Stream", "fit", "fit_behind", "Behind", "regression_rows", "invert",
+    "InverseStream", "Chain", "run_loop", "sample_period",
+]
 
 # --- core (model, stream, identification) ---
 @final

@@ -45,3 +45,28 @@ def as_n_h(n_h: object) -> int:
     if n_h < 1:
         raise ValueError(f"n_h: must be >= 1, got {n_h}")
     return int(n_h)
+
+
+def upper_triangular(name: str, w: NDArray[np.float64]) -> None:
+    """Reject a square matrix with a non-zero entry below the diagonal, naming the first
+    one (row-major order): the Preisach plane has no cell with β above α."""
+    below = np.tril(w, -1) != 0
+    if below.any():
+        i, j = (int(k) for k in np.argwhere(below)[0])
+        raise ValueError(f"{name}: entry [{i}, {j}] = {float(w[i, j]):g} lies below the diagonal; only the upper "
+                         f"triangle (β-cell row <= α-cell column) holds masses, the rest must be 0")
+
+
+def check_range_reached(name: str, u: NDArray[np.float64], u_range: tuple[float, float], n_h: int) -> None:
+    """Reject a model range in which the input ``u`` switches no relay after its first
+    sample: relays switch at the cell centres ``lo + (k + 1/2) Δ``, so an input that
+    never crosses one (it stays outside the range, or inside one cell) leaves every mass
+    unidentifiable."""
+    lo, hi = u_range
+    centres = lo + (np.arange(n_h) + 0.5) * (hi - lo) / n_h
+    side = np.searchsorted(centres, u, side="right")
+    if np.all(side == side[0]):
+        where = "outside the range" if side[0] in (0, n_h) else f"inside one of its n_h = {n_h} cells"
+        raise ValueError(f"{name}: no relay of the model range ({lo:.6g}, {hi:.6g}) would switch: the input "
+                         f"({float(u.min()):.6g} .. {float(u.max()):.6g}) lies {where}; give a range the input "
+                         "sweeps (the default fits the input)")

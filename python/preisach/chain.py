@@ -1,4 +1,4 @@
-"""Chains of blocks (DESIGN.md, "Blocks"): the simulated stage, an identified model, a
+"""Chains of blocks (``docs/method/blocks.md``): the simulated stage, an identified model, a
 model plus effects (what ``preisach diagnose --save-model`` writes) are one object,
 :class:`Chain`, run by the Rust core (``preisach._preisach.Chain``); see
 ``docs/method/blocks.md`` for the block vocabulary and the JSON format.

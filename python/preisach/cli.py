@@ -1,8 +1,11 @@
 """The ``preisach`` command line. Usage errors: one line, exit 2. Bad data: one line,
-exit 1. Never a traceback for a user's mistake."""
+exit 1. Never a traceback for a user's mistake. Output paths and optional dependencies
+are checked before any work; a closed pipe (``| head``) ends the command quietly."""
 from __future__ import annotations
 
 import argparse
+import os
+import re
 import sys
 import warnings
 from typing import Any, Callable, Optional, Sequence
@@ -12,7 +15,8 @@ import numpy as np
 EXAMPLES = {
     "identify": "example: preisach identify examples/paper_ident.csv --n-h 40 -o model.json",
     "predict": "example: preisach predict model.json examples/paper_ident.csv -o predicted.csv",
-    "invert": "example: preisach invert model.json reference.csv -o input.csv --method interpolated",
+    "invert": "example: preisach invert model.json reference.csv -o input.csv\n"
+              "         preisach invert model.json reference.csv -o input.csv --method interpolated --lookahead 100",
     "simulate": "example: preisach simulate --preset paper input.csv -o measured.csv",
     "diagnose": "example: preisach diagnose train.csv --holdout steps.csv --holdout sine50.csv "
                 "--json report.json --save-model aug.json --plots plots/",
@@ -21,7 +25,18 @@ EXAMPLES = {
     "import-mat": "example: preisach import-mat capture.mat --list\n"
                   "         preisach import-mat capture.mat --u \"u_dac\" --y \"y_sensor\" -o ident.csv\n"
                   "         preisach import-mat data.mat --t t --u 'M(:,1)' --y 2 -o ident.csv",
+    "compare": "example: preisach compare model.json ident.csv steps.csv --plot compare.png\n"
+               "fit [%] = 100 (1 - |y - y_model| / |y - mean(y)|), as MATLAB's compare",
+    "export-mat": "example: preisach export-mat model.json -o model.mat\n"
+                  "then in MATLAB: S = load('model.mat'); S.weights(i, j) is the mass of cell (beta_i, alpha_j)",
 }
+
+# Output options, checked before any work: attribute -> (flag, is a directory).
+OUTPUTS = {"output_path": ("-o", False), "json": ("--json", False), "save_model": ("--save-model", False),
+           "plots": ("--plots", True), "plot": ("--plot", False), "out": ("--out", True)}
+
+# argparse takes "-1e3" for an option; a number in any float spelling is a value.
+_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-inf(inity)?$", re.IGNORECASE)
 
 
 class UsageError(Exception):
@@ -29,22 +44,39 @@ class UsageError(Exception):
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = _NUMBER
+
     def error(self, message: str) -> Any:  # one line, no usage dump
         raise UsageError(f"{self.prog}: {message} (see --help)")
 
 
+class _Help(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
+    """Every option's default in --help (unless its help already says it, or there is
+    none to show); the examples in the epilog kept as written."""
+
+    def _get_help_string(self, action: argparse.Action) -> Optional[str]:
+        text = action.help or ""
+        if action.required or action.default is None or action.default is False or "default" in text:
+            return text
+        return super()._get_help_string(action)
+
+
 def _cmd_identify(a: argparse.Namespace) -> int:
+    from preisach._validate import as_n_h, as_range, check_range_reached
     from preisach.io import read_record
     from preisach.model import PreisachModel, PreisachWarning
 
     rec = read_record(a.data, ["u", "y"])
+    if a.range is not None:
+        check_range_reached("--range", rec["u"], as_range("--range", a.range), as_n_h(a.n_h))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", PreisachWarning)
         model = PreisachModel.fit(rec["u"], rec["y"], a.n_h, u_range=a.range, reg=a.reg, solver=a.solver,
                                   output=a.output)
     model.save(a.output_path)
     rep = model.report
-    assert rep is not None
     print(f"identified n_h={model.n_h} on u_range=({model.u_range[0]:.6g}, {model.u_range[1]:.6g}) from "
           f"{rep.n_samples} samples ({rep.n_rows} distinct states, {rep.reversals} reversals) with {rep.solver}")
     print(f"training RMSE {rep.rmse:.6g}; offset {model.offset:.6g}; cells never excited {rep.cells_never_excited}")
@@ -60,6 +92,25 @@ def _load_chain(path: str) -> Any:
 
     obj = load(path)
     return obj if isinstance(obj, Chain) else Chain(obj)
+
+
+def _load_for_export(path: str) -> tuple[Any, Optional[dict[str, Any]]]:
+    """The identified model of a model, chain or stage file, and the chain's dict
+    without that model's block (None for a plain model)."""
+    from preisach.chain import load
+    from preisach.model import PreisachModel
+
+    obj = load(path)
+    if isinstance(obj, PreisachModel):
+        return obj, None
+    model = obj.model
+    if model is None:
+        raise ValueError(f"{path}: a chain ({' -> '.join(obj.kinds())}) with no identified hysteresis model: "
+                         "export-mat writes an identified model")
+    d = obj.to_dict()
+    blocks = list(d["blocks"])
+    del blocks[obj.kinds().index("hysteresis")]
+    return model, {**d, "blocks": blocks}
 
 
 def _cmd_predict(a: argparse.Namespace) -> int:
@@ -82,6 +133,8 @@ def _cmd_invert(a: argparse.Namespace) -> int:
     from preisach.io import read_record, write_csv
     from preisach.model import PreisachModel
 
+    if a.lookahead is not None and a.method != "interpolated":
+        raise UsageError(f"preisach invert: --lookahead is for --method interpolated, not {a.method} (see --help)")
     model = load(a.model)
     if not isinstance(model, PreisachModel):
         raise ValueError(f"{a.model}: a chain ({' -> '.join(model.kinds())}), not a single identified model: "
@@ -122,12 +175,12 @@ def _cmd_demo(a: argparse.Namespace) -> int:
 
 def _cmd_import_mat(a: argparse.Namespace) -> int:
     from preisach.io import write_csv
-    from preisach.matlab import list_channels, read_mat
+    from preisach.matlab import list_channels, read_mat, sample_rate
 
     if a.list:
         for c in list_channels(a.file):
             d = c.data
-            print(f"{c.index:4d}  {c.name:40s} {d.size:9d} samples  {d.min():.6g} .. {d.max():.6g}  ({c.source})")
+            print(f"{c.index:4d}  {c.label:40s} {d.size:9d} samples  {d.min():.6g} .. {d.max():.6g}  ({c.source})")
         return 0
     if a.output_path is None or a.u is None:
         raise UsageError("preisach import-mat: give --u CHANNEL and -o RECORD.csv, or --list (see --help)")
@@ -135,9 +188,43 @@ def _cmd_import_mat(a: argparse.Namespace) -> int:
         raise UsageError("preisach import-mat: give either --t or --fs, not both (see --help)")
     rec = read_mat(a.file, u=a.u, y=a.y, t=a.t, fs=a.fs)
     write_csv(a.output_path, rec)
-    n = rec["u"].size
-    dt = float(np.median(np.diff(rec["t"])))
-    print(f"wrote {a.output_path} ({n} samples, columns {','.join(rec)}, {1.0 / dt:.6g} Hz)")
+    print(f"wrote {a.output_path} ({rec['u'].size} samples, columns {','.join(rec)}, "
+          f"{sample_rate(rec['t']):.6g} Hz)")
+    return 0
+
+
+def _cmd_compare(a: argparse.Namespace) -> int:
+    from preisach.comparison import compare, table
+
+    chain = _load_chain(a.model)
+    results = [compare(chain, path) for path in a.records]
+    print(table(results))
+    if a.json is not None:
+        import json
+
+        from preisach.io import write_text
+
+        doc = {"model": a.model, "records": [r.to_dict() for r in results]}
+        write_text(a.json, json.dumps(doc, indent=2, allow_nan=False) + "\n")
+        print(f"wrote {a.json}")
+    if a.plot is not None:
+        from preisach.plots import plot_compare
+
+        print(f"wrote {plot_compare(results, a.plot, title=a.model)}")
+    return 0
+
+
+def _cmd_export_mat(a: argparse.Namespace) -> int:
+    from preisach.matlab import write_model_mat
+
+    model, chain = _load_for_export(a.model)
+    write_model_mat(a.output_path, model, chain)
+    print(f"wrote {a.output_path}: weights ({model.n_h}x{model.n_h}, beta rows, alpha columns), levels "
+          f"({model.n_h + 1}), offset, u_range, n_h, output ('{model.output}'), format")
+    if chain is not None:
+        names = [b["type"] for b in chain["blocks"]]
+        print(f"and the struct chain with the blocks after the hysteresis ({', '.join(map(str, names)) or 'none'}): "
+              "their parameters, which the MATLAB snippet in docs/guide/matlab.md does not evaluate")
     return 0
 
 
@@ -146,6 +233,30 @@ def _range(s: str) -> float:
         return float(s)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a number: {s!r}") from None
+
+
+def _preflight(a: argparse.Namespace) -> None:
+    """Check every output path and optional dependency before any work, so a long run
+    does not fail at its end (errors name the option and the user's path)."""
+    from preisach.io import check_writable
+
+    for attr, (flag, is_dir) in OUTPUTS.items():
+        path = getattr(a, attr, None)
+        if path is not None:
+            check_writable(path, flag, directory=is_dir)
+    for attr, flag in (("plots", "--plots"), ("plot", "--plot")):
+        if getattr(a, attr, None) is not None:
+            from preisach.plots import HINT, available
+
+            if not available():
+                raise ValueError(f"{flag}: {HINT}")
+    if a.command in ("import-mat", "export-mat"):
+        import importlib.util
+
+        from preisach.matlab import SCIPY_HINT
+
+        if importlib.util.find_spec("scipy") is None:
+            raise ValueError(SCIPY_HINT)
 
 
 def _int_at_least(low: int) -> Callable[[str], int]:
@@ -177,41 +288,56 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
     def add(name: str, help: str) -> argparse.ArgumentParser:
-        return sub.add_parser(name, help=help, description=help, epilog=EXAMPLES.get(name),
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
+        return sub.add_parser(name, help=help, description=help, epilog=EXAMPLES.get(name), formatter_class=_Help)
 
     s = add("identify", "Identify a Preisach model from a record (t,u,y).")
     s.add_argument("data", metavar="DATA", help="record: CSV with header t,u,y or .npz")
-    s.add_argument("--n-h", type=_positive_int, required=True, dest="n_h", help="discretization level")
+    s.add_argument("--n-h", type=_positive_int, required=True, dest="n_h", metavar="N",
+                   help="discretization level: cells per input axis (the paper uses 100)")
     s.add_argument("--range", type=_range, nargs=2, metavar=("LO", "HI"), default=None,
                    help="model range (default: the input range shrunk by 0.5%% at each end)")
-    s.add_argument("--reg", type=float, default=0.0, help="smoothness regularization (default 0)")
-    s.add_argument("--solver", choices=["auto", "active", "clarabel", "structured", "gradient"], default="auto")
+    s.add_argument("--reg", type=float, default=0.0, help="smoothness regularization weight")
+    # ('gradient' stays accepted so that it fails with the library's message naming what to use.)
+    s.add_argument("--solver", choices=["auto", "active", "clarabel", "structured", "gradient"], default="auto",
+                   metavar="{auto,active,clarabel,structured}",
+                   help="QP solver; all exact, auto picks the fastest for the size (see docs/method/identification.md)")
     s.add_argument("--output-kind", dest="output", choices=["stepwise", "interpolated"], default="stepwise",
-                   help="fit the stepwise (paper) or the interpolated model")
-    s.add_argument("-o", dest="output_path", required=True, metavar="MODEL.json")
+                   help="fit the stepwise (paper) or the interpolated (continuous) model")
+    s.add_argument("-o", dest="output_path", required=True, metavar="MODEL.json", help="where to write the model")
     s.set_defaults(func=_cmd_identify)
 
     s = add("predict", "Run a model (or a chain saved by diagnose) over a record; writes t,y.")
-    s.add_argument("model", metavar="MODEL.json")
+    s.add_argument("model", metavar="MODEL.json", help="a model or chain file")
     s.add_argument("data", metavar="DATA", help="record with columns t,u (y optional: RMSE is printed)")
-    s.add_argument("-o", dest="output_path", required=True, metavar="OUT.csv")
+    s.add_argument("-o", dest="output_path", required=True, metavar="OUT.csv", help="where to write t,y")
     s.set_defaults(func=_cmd_predict)
 
+    s = add("compare", "Fit of a model on measured records, as MATLAB's compare: fit %, RMSE and max error "
+            "per record, and a plot of measured against model with the residual.")
+    s.add_argument("model", metavar="MODEL", help="a model or chain file (anything predict accepts)")
+    s.add_argument("records", metavar="RECORD", nargs="+", help="records with columns t,u,y")
+    s.add_argument("--plot", default=None, metavar="FILE.png",
+                   help="draw measured vs model (over time and as a loop) and the residual per record "
+                        "(needs preisach[plot])")
+    s.add_argument("--json", default=None, metavar="OUT.json", help="write the figures as JSON")
+    s.set_defaults(func=_cmd_compare)
+
     s = add("invert", "Input that makes the model follow a reference (t,r); writes t,u.")
-    s.add_argument("model", metavar="MODEL.json")
+    s.add_argument("model", metavar="MODEL.json", help="a model file")
     s.add_argument("ref", metavar="REF.csv", help="reference with columns t,r")
-    s.add_argument("--method", choices=["closest", "interpolated", "continuous"], default="closest")
-    s.add_argument("--lookahead", type=_nonneg_int, default=None,
-                   help="preview samples for --method interpolated (default: whole record)")
-    s.add_argument("-o", dest="output_path", required=True, metavar="U.csv")
+    s.add_argument("--method", choices=["closest", "interpolated", "continuous"], default="continuous",
+                   help="continuous: smooth input, no look-ahead (for a real stage); closest: the paper's "
+                        "per-sample closest match (a staircase); interpolated: the paper's Fig. 9 smoothing")
+    s.add_argument("--lookahead", type=_nonneg_int, default=None, metavar="N",
+                   help="preview samples for --method interpolated (default: the whole record)")
+    s.add_argument("-o", dest="output_path", required=True, metavar="U.csv", help="where to write t,u")
     s.set_defaults(func=_cmd_invert)
 
     s = add("simulate", "Run the plant simulator on an input record (t,u); writes t,u,y.")
-    s.add_argument("stage", metavar="STAGE.json", nargs="?", default=None)
+    s.add_argument("stage", metavar="STAGE.json", nargs="?", default=None, help="a stage file (or use --preset)")
     s.add_argument("--preset", default=None, help="a built-in stage, e.g. 'paper'")
-    s.add_argument("input", metavar="INPUT.csv")
-    s.add_argument("-o", dest="output_path", required=True, metavar="OUT.csv")
+    s.add_argument("input", metavar="INPUT.csv", help="input record with columns t,u")
+    s.add_argument("-o", dest="output_path", required=True, metavar="OUT.csv", help="where to write t,u,y")
     s.set_defaults(func=_cmd_simulate)
 
     s = add("diagnose", "Where the model and the stage disagree, which unmodelled effect causes it, "
@@ -219,7 +345,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("train", metavar="TRAIN", help="training record t,u,y (fits the baseline model)")
     s.add_argument("--holdout", action="append", required=True, metavar="H",
                    help="holdout record t,u,y (repeat for several); never used to fit anything")
-    s.add_argument("--n-h", type=_positive_int, default=40, dest="n_h", help="baseline n_h (default 40)")
+    s.add_argument("--n-h", type=_positive_int, default=40, dest="n_h", metavar="N", help="baseline n_h")
     s.add_argument("--baseline", default=None, metavar="CHAIN.json",
                    help="a chain that already models some effects")
     s.add_argument("--json", required=True, metavar="REPORT.json", help="write the full report here")
@@ -231,22 +357,29 @@ def build_parser() -> argparse.ArgumentParser:
     s = add("demo", "Run the paper's workflow on the simulated 'paper' stage: record, identify n_h=100, "
             "compensate 5 Hz / 50 Hz references with each inverse method, diagnose; writes figures, "
             "CSV records and report.md.")
-    s.add_argument("--out", default="preisach-demo", metavar="DIR", help="output directory (default ./preisach-demo)")
+    s.add_argument("--out", default="preisach-demo", metavar="DIR", help="output directory")
     s.add_argument("--quick", action="store_true", help="shorter records (a few seconds; for tests)")
     s.add_argument("--no-plots", dest="no_plots", action="store_true", help="skip the PNG figures")
     s.set_defaults(func=_cmd_demo)
 
     s = add("import-mat", "Convert a dSPACE/MATLAB capture (.mat, v4-v7) to a record CSV t,u[,y]. "
             "Channels by name or by the index --list prints. Needs SciPy: pip install 'preisach[mat]'.")
-    s.add_argument("file", metavar="FILE.mat")
+    s.add_argument("file", metavar="FILE.mat", help="the capture")
     s.add_argument("--list", action="store_true", help="print the channels (index, name, length, range) and exit")
     s.add_argument("--u", default=None, metavar="NAME|INDEX", help="input channel (DAC command)")
     s.add_argument("--y", default=None, metavar="NAME|INDEX", help="output channel (sensor); optional")
     s.add_argument("--t", default=None, metavar="NAME|INDEX",
                    help="time channel (default: the dSPACE capture's X axis)")
     s.add_argument("--fs", type=_range, default=None, metavar="HZ", help="sample rate, when there is no time channel")
-    s.add_argument("-o", dest="output_path", default=None, metavar="RECORD.csv")
+    s.add_argument("-o", dest="output_path", default=None, metavar="RECORD.csv", help="where to write the record")
     s.set_defaults(func=_cmd_import_mat)
+
+    s = add("export-mat", "Write a model (or a chain's hysteresis and blocks) as a MAT file for MATLAB: "
+            "weights as an n_h x n_h matrix (beta rows, alpha columns), levels, offset, u_range. "
+            "Needs SciPy: pip install 'preisach[mat]'.")
+    s.add_argument("model", metavar="MODEL", help="a model or chain file")
+    s.add_argument("-o", dest="output_path", required=True, metavar="MODEL.mat", help="where to write the MAT file")
+    s.set_defaults(func=_cmd_export_mat)
     return p
 
 
@@ -258,16 +391,33 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         if not getattr(args, "command", None):
             parser.print_help()
             return 2
-        return int(args.func(args))
+        _preflight(args)
+        code = int(args.func(args))
+        sys.stdout.flush()  # a closed pipe shows here, inside the handler, not at exit
+        return code
     except UsageError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        return _closed_pipe()
     except (ValueError, OSError) as exc:
         print(f"preisach: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("preisach: interrupted", file=sys.stderr)
         return 130
+
+
+def _closed_pipe() -> int:
+    """The reader of stdout went away (``preisach ... | head``): stop quietly with the
+    shell's code for SIGPIPE, and point stdout at /dev/null so that the interpreter's
+    final flush does not report the same error."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):  # stdout without a file descriptor (captured in tests)
+        pass
+    return 141
 
 
 if __name__ == "__main__":

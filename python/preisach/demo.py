@@ -1,13 +1,13 @@
 """``preisach demo``: the paper's workflow end to end on the simulated ``paper`` stage.
 
 1. record an identification run: the paper's increasing-amplitude sine (≥ 100
-   reversals, seed Fig. 6a) after a smooth lead-in from rest, followed by a few steps
+   reversals, the paper's Fig. 6a) after a smooth lead-in from rest, followed by a few steps
    with dwell (they let the diagnosis see the stage's dynamics; identification uses
    the sine part only);
 2. identify n_h = 100 (and n_h = 10 for the paper's low-discretization case, §4.2.1);
-3. validate the model on a 20 Hz sine (seed Fig. 8);
+3. validate the model on a 20 Hz sine (the paper's Fig. 8);
 4. compensate 5 Hz and 50 Hz sines of 10 µm amplitude with each inverse method
-   (closest, interpolated, continuous) in the 100 kHz sample loop (seed §4.2, Fig. 12),
+   (closest, interpolated, continuous) in the 100 kHz sample loop (the paper §4.2, Fig. 12),
    plus an uncompensated straight-line baseline;
 5. diagnose the sim-to-real gap against holdout records (steps with dwell, a 50 Hz sine);
 6. write the records (CSV), the model, the diagnosis (JSON) and a Markdown report;
@@ -41,7 +41,8 @@ class DemoResult:
     """What :func:`run` did: ``out`` (the directory), ``files`` (written, relative
     names), ``tracking`` (one dict per run: label, n_h, freq_hz, method, rms_um,
     max_um, max_pct, hf_db, p99_ns, misses), ``identification`` (numbers of the fit),
-    ``diagnosis`` (GapReport dict), ``plots`` (False if skipped) and ``seconds``."""
+    ``diagnosis`` (GapReport dict), ``plots`` (False if skipped), ``plots_note`` (why
+    they were skipped, for the report) and ``seconds``."""
 
     out: Path
     files: list[str] = field(default_factory=list)
@@ -50,6 +51,7 @@ class DemoResult:
     diagnosis: dict[str, Any] = field(default_factory=dict)
     plots: bool = False
     seconds: float = 0.0
+    plots_note: str = ""
 
     def table(self) -> str:
         """The tracking results as a fixed-width text table."""
@@ -140,15 +142,18 @@ def run(out: Any = "preisach-demo", quick: bool = False, plots: Optional[bool] =
     t_start = time.perf_counter()
     outdir = Path(out)
     outdir.mkdir(parents=True, exist_ok=True)
+    note = ""
     if plots is None:
         plots = P.available()
+        note = "" if plots else f"Plots were skipped: {P.HINT}."
     elif plots and not P.available():
         raise ValueError(P.HINT)
-    res = DemoResult(out=outdir, plots=bool(plots))
+    elif not plots:
+        note = "Plots were skipped, as asked."
+    res = DemoResult(out=outdir, plots=bool(plots), plots_note=note)
     pr = _Progress(progress, 7 if plots else 6)
     um = 1.0 / SENSOR_V_PER_UM
     stage = Stage.preset("paper")
-    files: dict[str, Any] = {}
 
     # 1. identification record.
     with pr.step("recording the identification run on the simulated 'paper' stage"):
@@ -221,7 +226,8 @@ def run(out: Any = "preisach-demo", quick: bool = False, plots: Optional[bool] =
     # 5. diagnosis.
     with pr.step("diagnosing the sim-to-real gap (holdouts: steps with dwell, 50 Hz sine)"):
         dwell = int((0.03 if quick else 0.06) * FS)
-        u_steps = np.concatenate([np.zeros(dwell // 2)] + [np.full(dwell, v) for v in (1.0, 3.0, 5.0, 3.5, 5.5, 4.0, 2.0, 0.5)])
+        levels = (1.0, 3.0, 5.0, 3.5, 5.5, 4.0, 2.0, 0.5)
+        u_steps = np.concatenate([np.zeros(dwell // 2)] + [np.full(dwell, v) for v in levels])
         y_steps = _record(stage, u_steps)
         t5 = np.arange(int((0.1 if quick else 0.2) * FS)) / FS
         u_s50 = np.concatenate([_ramp(0.0, 0.75, int(0.02 * FS)), 3.75 - 3.0 * np.cos(2 * np.pi * 50 * t5)])
@@ -230,7 +236,8 @@ def run(out: Any = "preisach-demo", quick: bool = False, plots: Optional[bool] =
                 {"name": "holdout_sine50", "t": np.arange(u_s50.size) / FS, "u": u_s50, "y": y_s50}]
         dec = 4  # the diagnosis fits at 25 kHz anyway; the effects of interest lie below 2 kHz
         train = {"name": "ident", "t": t_id[::dec], "u": u_id[::dec], "y": y_id[::dec]}
-        cands = ("delay", "vibration", "creep") if quick else ("delay", "lowpass", "vibration", "creep", "drift", "rate")
+        cands = (("delay", "vibration", "creep") if quick
+                 else ("delay", "lowpass", "vibration", "creep", "drift", "rate"))
         gap = preisach.diagnose(train, hold, n_h=20 if quick else 40, candidates=cands,
                                 fit_rate_hz=10e3, progress=False)
         res.diagnosis = gap.to_dict()
@@ -256,24 +263,34 @@ def run(out: Any = "preisach-demo", quick: bool = False, plots: Optional[bool] =
     # 7. plots.
     if plots:
         with pr.step("plotting"):
-            pl: list[str] = []
-            pl.append(P.plot_weights(model, outdir / "fig6b_weights.png", "V, DAC", "V, sensor"))
-            pl.append(P.plot_loop(t_val, u_val, y_val * um, yp_val * um, outdir / "fig8_model_vs_measured.png",
-                                  input_unit="V, DAC", output_unit="µm", title="20 Hz validation, n_h = 100"))
-            for label, d in loops.items():
-                pl.append(P.plot_tracking(d["t"], d["r"] * um, d["y"] * um,
-                                          outdir / f"fig12_tracking_{_slug(label)}.png", unit="µm",
-                                          title=" ".join(label.split())))
-            for fr in (5.0, 50.0):
-                sig = {m: loops[f"n_h=100  {fr:g} Hz  {m}"]["u"][int(0.05 * FS):] for m in METHODS}
-                pl.append(P.plot_spectra(sig, FS, outdir / f"spectra_inputs_{fr:g}hz.png", unit="V, DAC",
-                                         title=f"inverted inputs, {fr:g} Hz reference, n_h = 100", mark_hz=780.0))
-            pl += gap.plot(outdir / "diagnosis")
+            pl = _plots(outdir, model, (t_val, u_val, y_val, yp_val), loops, gap)
             res.files += [str(Path(p).relative_to(outdir)) for p in pl]
     res.seconds = time.perf_counter() - t_start
     write_text(outdir / "report.md", _report(res, gap))
     res.files.append("report.md")
     return res
+
+
+def _plots(outdir: Path, model: Any, validation: tuple[NDArray[np.float64], ...], loops: dict[str, dict[str, Any]],
+           gap: Any) -> list[str]:
+    """The demo's figures (the paper's Fig. 6b, 8 and 12, input spectra, the diagnosis)."""
+    from preisach import plots as P
+
+    um = 1.0 / SENSOR_V_PER_UM
+    t_val, u_val, y_val, yp_val = validation
+    pl: list[str] = []
+    pl.append(P.plot_weights(model, outdir / "fig6b_weights.png", "V, DAC", "V, sensor"))
+    pl.append(P.plot_loop(t_val, u_val, y_val * um, yp_val * um, outdir / "fig8_model_vs_measured.png",
+                          input_unit="V, DAC", output_unit="µm", title="20 Hz validation, n_h = 100"))
+    for label, d in loops.items():
+        pl.append(P.plot_tracking(d["t"], d["r"] * um, d["y"] * um, outdir / f"fig12_tracking_{_slug(label)}.png",
+                                  unit="µm", title=" ".join(label.split())))
+    for fr in (5.0, 50.0):
+        sig = {m: loops[f"n_h=100  {fr:g} Hz  {m}"]["u"][int(0.05 * FS):] for m in METHODS}
+        pl.append(P.plot_spectra(sig, FS, outdir / f"spectra_inputs_{fr:g}hz.png", unit="V, DAC",
+                                 title=f"inverted inputs, {fr:g} Hz reference, n_h = 100", mark_hz=780.0))
+    pl += gap.plot(outdir / "diagnosis")
+    return pl
 
 
 def _slug(label: str) -> str:
@@ -323,8 +340,8 @@ def _report(res: DemoResult, gap: Any) -> str:
           "```", gap.summary(), "```", "",
           "## Files", ""]
     L += [f"- `{f}`" for f in res.files]
-    if not res.plots:
-        L += ["", "Plots were skipped: matplotlib is not installed (`pip install 'preisach[plot]'`)."]
+    if res.plots_note:
+        L += ["", res.plots_note]
     L += ["", f"Total time: {res.seconds:.1f} s.", ""]
     return "\n".join(L)
 
@@ -342,7 +359,8 @@ def main_cli(out: str, quick: bool, no_plots: bool) -> int:
           f"{d['baseline']['holdout_rmse'] / SENSOR_V_PER_UM:.3f} µm -> "
           f"{d['augmented']['holdout_rmse'] / SENSOR_V_PER_UM:.3f} µm with {d['augmented']['effects'] or 'no effects'}")
     n_png = sum(f.endswith(".png") for f in res.files)
-    print(f"wrote {len(res.files)} files ({n_png} PNG) to {res.out} in {res.seconds:.1f} s; see {res.out / 'report.md'}")
+    print(f"wrote {len(res.files)} files ({n_png} PNG) to {res.out} in {res.seconds:.1f} s; "
+          f"see {res.out / 'report.md'}")
     if not res.plots and not no_plots:
         print(f"no plots: {P.HINT}")
     return 0

@@ -1,19 +1,24 @@
-"""The Python face of the discrete Preisach model (seed §2–3; DESIGN.md conventions)."""
+"""The Python face of the discrete Preisach model (the paper §2–3; conventions in
+``docs/method/model.md``)."""
 from __future__ import annotations
 
 import json
 import math
 import warnings
-from typing import Any, Optional, Sequence
+from typing import TYPE_CHECKING, Any, Literal, Optional, Sequence, TypeVar, Union, overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from preisach import _preisach
-from preisach._validate import as_n_h, as_range, as_signal
+from preisach._validate import as_n_h, as_range, as_signal, check_range_reached, upper_triangular
 from preisach.io import PathLike, write_text
 
+if TYPE_CHECKING:
+    from preisach._inverse import Inverter
+
 _OUTPUTS = ("stepwise", "interpolated")
+_M = TypeVar("_M", bound="PreisachModel")
 
 
 class PreisachWarning(UserWarning):
@@ -72,17 +77,21 @@ class PreisachModel:
     ----------
     weights : (n_h, n_h) array
         Masses ``w[i, j] >= 0`` at the cell centres: β-cell = row, α-cell = column, upper
-        triangle including the diagonal; entries below the diagonal are ignored.
+        triangle including the diagonal. Entries below the diagonal must be zero (a cell
+        with β above α does not exist); a non-zero one is a ``ValueError``.
     u_range : (lo, hi)
         Model range (β_m, α_m); input levels ``v_k = lo + k (hi - lo) / n_h``.
     offset : float
-        The constant η0 added to ``sum w R`` (seed eq. 4).
+        The constant η0 added to ``sum w R`` (the paper's eq. 4).
     output : {"stepwise", "interpolated"}
         ``stepwise`` is the relay model of the paper (the output steps when the input
         crosses a cell centre). ``interpolated`` spreads each mass uniformly over its cell,
         so the output is continuous in the input and equals the stepwise model on the
-        levels (MATH.md); it is the forward map the continuous inverse inverts.
+        levels (``docs/method/fast-paths.md``); it is the forward map the continuous
+        inverse inverts.
 
+    Notes
+    -----
     All relays start at −1 (negative saturation) unless a ``state`` is given.
     """
 
@@ -98,6 +107,7 @@ class PreisachModel:
             raise ValueError(f"weights: expected a square (n_h, n_h) array, got shape {w.shape}")
         if w.shape[0] < 1:
             raise ValueError("n_h: must be >= 1, got 0")
+        upper_triangular("weights", w)
         lo, hi = as_range("u_range", u_range)
         if not isinstance(offset, (int, float, np.floating, np.integer)) or not math.isfinite(float(offset)):
             raise ValueError(f"offset: must be a finite number, got {offset!r}")
@@ -108,7 +118,7 @@ class PreisachModel:
         self.report = None
 
     @classmethod
-    def _wrap(cls, core: Any, output: str = "stepwise") -> "PreisachModel":
+    def _wrap(cls: type[_M], core: Any, output: str = "stepwise") -> _M:
         m = cls.__new__(cls)
         m._core = core
         m._output = output
@@ -118,8 +128,8 @@ class PreisachModel:
     # --- identification -------------------------------------------------------------
     @classmethod
     def fit(cls, u: ArrayLike, y: ArrayLike, n_h: int, u_range: Optional[Sequence[float]] = None,
-            reg: float = 0.0, solver: str = "auto", output: str = "stepwise") -> "PreisachModel":
-        """Identify a model from input ``u`` and measured output ``y`` (seed §3.2–3.3).
+            reg: float = 0.0, solver: str = "auto", output: str = "stepwise") -> "FittedModel":
+        """Identify a model from input ``u`` and measured output ``y`` (the paper §3.2–3.3).
 
         One exact QP: non-negative least squares on the masses with a free offset
         (the paper's alternation of lsqnonneg and lsqnonlin, solved as one problem).
@@ -133,28 +143,30 @@ class PreisachModel:
             Discretization level (cells per axis; n_h + 1 input levels).
         u_range : (lo, hi), optional
             Model range. Default: the input range shrunk by 0.5 % of its span at each end,
-            so the input slightly exceeds the model range as the paper advises (§3.3).
+            so the input slightly exceeds the model range as the paper advises (§3.3). A
+            range the input never enters (no relay would switch) is a ``ValueError``.
         reg : float
             Smoothness weight: adds ``reg * sum (w_a - w_b)^2`` over neighbouring cells to
             the mean squared residual (both in output units squared). Default 0.
-        solver : {"auto", "active", "clarabel", "structured", "gradient"}
+        solver : {"auto", "active", "clarabel", "structured"}
             All are exact (the same optimum). ``active``: primal–dual active set on the
             sparse Everett-coordinate KKT system, a handful of sparse factorizations
             (fastest for small and mid-size n_h; hands over to ``structured`` if it has
             not settled after 40 steps). ``structured``: clarabel's interior point on the
-            sparse QP in Everett coordinates; never forms the dense matrix.
-            ``clarabel``: clarabel on the dense QP over the masses (AᵀWA formed; a
-            reference, slow beyond a few hundred cells). These three handle n_h <= 600.
-            ``gradient``: projected gradient / conjugate gradients with A and Aᵀ applied
-            through the Everett table, for any n_h that fits in memory; it stops on a
-            work cap on large problems and then warns that the fit is approximate.
+            sparse QP in Everett coordinates, polished to the exact optimum; never forms
+            the dense matrix. ``clarabel``: clarabel on the dense QP over the masses
+            (AᵀWA formed; a reference, slow beyond a few hundred cells). All handle
+            n_h <= 600.
             ``auto``: ``active`` up to 2000 free cells, else ``structured``.
             ``report.solver`` says which ran.
         output : {"stepwise", "interpolated"}
             Which model to fit (see the class docstring).
 
-        Returns a fitted model with ``.report`` (a :class:`FitReport`). The paper's
-        pitfalls are also emitted as :class:`PreisachWarning`.
+        Returns
+        -------
+        FittedModel
+            The model, with ``.report`` (a :class:`FitReport`). The paper's pitfalls
+            are also emitted as :class:`PreisachWarning`.
         """
         uu = as_signal("u", u)
         yy = as_signal("y", y)
@@ -162,12 +174,14 @@ class PreisachModel:
             raise ValueError(f"y: length {yy.size} does not match u (length {uu.size})")
         nh = as_n_h(n_h)
         rng = None if u_range is None else as_range("u_range", u_range)
+        if rng is not None:
+            check_range_reached("u_range", uu, rng, nh)
         if not isinstance(reg, (int, float, np.floating, np.integer)) or not math.isfinite(float(reg)) or reg < 0:
             raise ValueError(f"reg: must be a finite number >= 0, got {reg!r}")
         if output not in _OUTPUTS:
             raise ValueError(f"output: expected 'stepwise' or 'interpolated', got {output!r}")
         core, rep = _preisach.fit(uu, yy, nh, rng, float(reg), str(solver), output == "interpolated")
-        model = cls._wrap(core, output)
+        model = FittedModel._wrap(core, output)
         model.report = FitReport(rep)
         for w in rep["warnings"]:
             warnings.warn(w, PreisachWarning, stacklevel=2)
@@ -206,11 +220,21 @@ class PreisachModel:
 
     def __repr__(self) -> str:
         lo, hi = self.u_range
-        return f"PreisachModel(n_h={self.n_h}, u_range=({lo:.6g}, {hi:.6g}), offset={self.offset:.6g}, output={self._output!r})"
+        return (f"PreisachModel(n_h={self.n_h}, u_range=({lo:.6g}, {hi:.6g}), offset={self.offset:.6g}, "
+                f"output={self._output!r})")
 
     # --- forward -------------------------------------------------------------------
+    @overload
+    def predict(self, u: ArrayLike, state: Optional[ArrayLike] = None, *, return_state: Literal[False] = False,
+                output: Optional[str] = None) -> NDArray[np.float64]: ...
+
+    @overload
+    def predict(self, u: ArrayLike, state: Optional[ArrayLike] = None, *, return_state: Literal[True],
+                output: Optional[str] = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+
     def predict(self, u: ArrayLike, state: Optional[ArrayLike] = None, *, return_state: bool = False,
-                output: Optional[str] = None) -> Any:
+                output: Optional[str] = None
+                ) -> Union[NDArray[np.float64], tuple[NDArray[np.float64], NDArray[np.float64]]]:
         """Model output for input ``u`` from ``state`` (default: all relays −1).
 
         ``state`` is a memory snapshot (``stream().state``, or the second value returned
@@ -228,7 +252,7 @@ class PreisachModel:
         """A sample-by-sample operator (the memory staircase), for real-time loops."""
         return Stream(self._core.stream(_state_array(state)))
 
-    # --- inversion (seed §4) -------------------------------------------------------
+    # --- inversion (the paper §4) -----------------------------------------------------
     def invert(self, r: ArrayLike, method: str = "closest", lookahead: Optional[int] = None) -> NDArray[np.float64]:
         """Input that makes the model follow reference ``r`` (see :mod:`preisach._inverse`).
 
@@ -240,7 +264,7 @@ class PreisachModel:
 
         return invert(self, r, method=method, lookahead=lookahead)
 
-    def inverter(self, method: str = "closest", lookahead: Optional[int] = None) -> Any:
+    def inverter(self, method: str = "closest", lookahead: Optional[int] = None) -> "Inverter":
         """A streaming inverter with ``.step(r)``, ``.process(block)`` and ``.state``."""
         from preisach._inverse import Inverter
 
@@ -302,6 +326,13 @@ class PreisachModel:
             raise ValueError(f"{path}: a chain ({' -> '.join(chain.kinds())}), not a single identified model: "
                              f"use preisach.load")
         return model
+
+
+class FittedModel(PreisachModel):
+    """What :meth:`PreisachModel.fit` returns: a :class:`PreisachModel` whose ``report``
+    is always a :class:`FitReport` (type checkers see it as set, not ``Optional``)."""
+
+    report: FitReport
 
 
 class Stream:

@@ -1,21 +1,23 @@
-"""PNG plots of models and tracking runs (the paper's figures 6b, 8 and 12).
+"""PNG plots of models, comparisons and tracking runs (the paper's figures 6b, 8 and 12).
 
 matplotlib is an optional extra (``pip install 'preisach[plot]'``); it is imported only
 when a plot is drawn, with the non-interactive Agg backend. Every function takes plain
-arrays (or a :class:`~preisach.PreisachModel`), writes one PNG and returns its path.
+arrays (or a :class:`~preisach.PreisachModel`, or :class:`~preisach.Comparison`
+results), writes one PNG and returns its path. :func:`available` tells whether
+matplotlib is installed without importing it.
 """
 from __future__ import annotations
 
 import importlib.util
 from pathlib import Path
-from typing import Any, Mapping, Optional
+from typing import Any, Mapping, Optional, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from preisach.io import PathLike
+from preisach.io import PathLike, atomic_write
 
-__all__ = ["available", "HINT", "plot_weights", "plot_loop", "plot_tracking", "plot_spectra"]
+__all__ = ["HINT", "available", "plot_compare", "plot_loop", "plot_spectra", "plot_tracking", "plot_weights"]
 
 #: How to get the plots when matplotlib is missing.
 HINT = "plots need matplotlib: pip install 'preisach[plot]'"
@@ -41,15 +43,17 @@ def _save(fig: Any, path: PathLike) -> str:
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(p, dpi=100)
     import matplotlib.pyplot as plt
 
-    plt.close(fig)
+    try:
+        atomic_write(p, lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
+    finally:
+        plt.close(fig)
     return str(p)
 
 
 def plot_weights(model: Any, path: PathLike, input_unit: str = "V", output_unit: str = "V") -> str:
-    """The Preisach weights as a heatmap over the (α, β) half plane (seed Fig. 6b): α
+    """The Preisach weights as a heatmap over the (α, β) half plane (the paper's Fig. 6b): α
     (switch-on level) across, β (switch-off level) up, cells below the diagonal blank."""
     plt = _plt()
     w = np.asarray(model.weights, dtype=np.float64)
@@ -66,7 +70,7 @@ def plot_weights(model: Any, path: PathLike, input_unit: str = "V", output_unit:
 
 def plot_loop(t: ArrayLike, u: ArrayLike, measured: ArrayLike, model: ArrayLike, path: PathLike,
               input_unit: str = "V", output_unit: str = "V", title: str = "") -> str:
-    """Model vs measurement (seed Fig. 8): (a) both over time, (b) the hysteresis loop
+    """Model vs measurement (the paper's Fig. 8): (a) both over time, (b) the hysteresis loop
     output against input."""
     plt = _plt()
     t, u, ym, yp = (np.asarray(a, dtype=np.float64) for a in (t, u, measured, model))
@@ -86,7 +90,7 @@ def plot_loop(t: ArrayLike, u: ArrayLike, measured: ArrayLike, model: ArrayLike,
 
 def plot_tracking(t: ArrayLike, reference: ArrayLike, measured: ArrayLike, path: PathLike,
                   unit: str = "V", title: str = "") -> str:
-    """Tracking (seed Fig. 12): (a) reference, measurement and error over time,
+    """Tracking (the paper's Fig. 12): (a) reference, measurement and error over time,
     (b) measurement against reference (a straight line when hysteresis is compensated)."""
     plt = _plt()
     t, r, y = (np.asarray(a, dtype=np.float64) for a in (t, reference, measured))
@@ -126,4 +130,34 @@ def plot_spectra(signals: Mapping[str, ArrayLike], sample_rate_hz: float, path: 
            ylim=(1e-8, None))
     ax.grid(alpha=0.3, which="both")
     ax.legend(loc="best")
+    return _save(fig, path)
+
+
+def plot_compare(results: Sequence[Any], path: PathLike, input_unit: str = "", output_unit: str = "",
+                 title: str = "") -> str:
+    """Measured against model, one row per record (from :func:`preisach.compare`): (a)
+    both over time, titled with the fit in percent and the RMSE, (b) both against the
+    input, the hysteresis loop (the paper's Fig. 8), (c) the residual ``y - y_hat``."""
+    if not results:
+        raise ValueError("results: nothing to plot")
+    plt = _plt()
+    n = len(results)
+    fig, axes = plt.subplots(n, 3, figsize=(15, 3.4 * n + 0.4 * bool(title)), squeeze=False)
+    out = f" [{output_unit}]" if output_unit else ""
+    inp = f" [{input_unit}]" if input_unit else ""
+    for (a, b, c), r in zip(axes, results):
+        a.plot(r.t, r.y, "k", lw=0.9, label="measured")
+        a.plot(r.t, r.y_hat, "tab:red", lw=0.9, ls="--", label="model")
+        a.set(xlabel="time [s]", ylabel=f"output{out}", title=f"{r.name}: fit {r.fit_percent:.2f} %, RMSE {r.rmse:.3g}")
+        a.legend(loc="best")
+        b.plot(r.u, r.y, "k", lw=0.7, label="measured")
+        b.plot(r.u, r.y_hat, "tab:red", lw=0.7, ls="--", label="model")
+        b.set(xlabel=f"input{inp}", ylabel=f"output{out}", title="hysteresis loop")
+        c.plot(r.t, r.y - r.y_hat, "tab:blue", lw=0.8)
+        c.axhline(0.0, color="k", lw=0.6)
+        c.set(xlabel="time [s]", ylabel=f"residual y - model{out}", title=f"max |error| {r.max_error:.3g}")
+        for ax in (a, b, c):
+            ax.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title)
     return _save(fig, path)

@@ -6,18 +6,15 @@ creep, vibration, sensor, lowpass, delay, noise, quantizer, drift; see
 :meth:`~preisach.Chain.simulate` runs it on a record at the record's own rate. The
 ``paper`` preset mirrors the stage of Stakvik et al. (2015, §3.1):
 
-=============  ==============================================================
-block          what (units)
-=============  ==============================================================
-quantizer      16-bit DAC, ±10 V (input ``u``: DAC volts; usable 0–7.5 V)
-lowpass        reconstruction filter, 2nd-order Butterworth at 20 kHz
-amplifier      20 V/V, saturation [−30, 180] V (piezo volts)
-hysteresis     parametric Preisach on a 500-level grid, piezo V → µm (0–~40 µm)
-creep          Kelvin–Voigt, 1 % per decade from 0.1 s to 100 s
-vibration      one mode at 780 Hz, damping 0.02 (unit DC gain)
-sensor         1/5 V/µm, 4th-order Butterworth anti-aliasing at 20 kHz, optional
-               4.58e-4 s delay (``delay=True``), 1 nm noise, 16-bit ±10 V ADC
-=============  ==============================================================
+| block | what (units) |
+|---|---|
+| quantizer | 16-bit DAC, ±10 V (input ``u``: DAC volts; usable 0–7.5 V) |
+| lowpass | reconstruction filter, 2nd-order Butterworth at 20 kHz |
+| amplifier | 20 V/V, saturation [−30, 180] V (piezo volts) |
+| hysteresis | parametric Preisach on a 500-level grid, piezo V → µm (0–~40 µm) |
+| creep | Kelvin–Voigt, 1 % per decade from 0.1 s to 100 s |
+| vibration | one mode at 780 Hz, damping 0.02 (unit DC gain) |
+| sensor | 1/5 V/µm, 4th-order anti-aliasing at 20 kHz, 1 nm noise, 16-bit ADC; 4.58e-4 s delay if ``delay=True`` |
 
 The output ``y`` is the sensor voltage (0.2 V per µm).
 
@@ -72,7 +69,9 @@ class Stage(Chain):
         The stage's own rate (default 100 kHz): what :meth:`run`, :meth:`step` and
         :func:`run_loop` use. :meth:`~preisach.Chain.simulate` runs at any record's rate.
 
-    Bad parameters raise ``ValueError`` naming the block and the parameter.
+    Notes
+    -----
+    Bad parameters raise ``ValueError`` naming the parameter and the block.
     Use :meth:`preset` for a ready-made stage and :meth:`from_json` to load one.
     """
 
@@ -160,14 +159,17 @@ def run_loop(model: Any, stage: Chain, reference: ArrayLike, method: str = "cont
         Desired output, in the stage's output units (sensor volts for ``paper``).
     method : {"continuous", "interpolated", "closest", "identity"}
         ``continuous``: exact inverse of the interpolated model (no look-ahead);
-        ``interpolated``: closest match smoothed by linear interpolation (seed Fig. 9),
+        ``interpolated``: closest match smoothed by linear interpolation (the paper's Fig. 9),
         streaming with ``lookahead`` samples of preview (default 2000); the reference
         is fed ahead by that much so ``u`` lines up with it (feed-forward);
         ``closest``: closest match (steps); ``identity``: ``u = reference``.
     lookahead : int, optional
         Only for ``interpolated``.
 
-    Returns a :class:`LoopResult`.
+    Returns
+    -------
+    LoopResult
+        The input, output, error and timing of the run.
     """
     if not isinstance(stage, Chain):
         raise ValueError(f"stage: expected a preisach.sim.Stage or a preisach.Chain, got {type(stage).__name__}")

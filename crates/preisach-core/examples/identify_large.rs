@@ -2,7 +2,7 @@
 //! benches/compare.py: a sine of growing amplitude with noise, a smooth density):
 //! wall time and peak resident memory (VmHWM) per solver.
 //!
-//!   cargo run --release -p preisach-core --example identify_large -- 1000 gradient
+//!   cargo run --release -p preisach-core --example identify_large -- 300 structured
 use std::time::Instant;
 
 use preisach_core::grid::Grid;
@@ -44,8 +44,8 @@ fn smooth(n: usize) -> Vec<f64> {
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let n_h: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(1000);
-    let solver = Solver::parse(args.get(2).map_or("gradient", |s| s.as_str())).expect("solver");
+    let n_h: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(300);
+    let solver = Solver::parse(args.get(2).map_or("structured", |s| s.as_str())).expect("solver");
     let n = 1_000_000;
     let mut rng = Lcg(1);
     let u: Vec<f64> = (0..n)

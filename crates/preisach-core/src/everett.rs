@@ -1,5 +1,5 @@
 //! The Everett table: `E(a, b)` = total mass of the cells with α-index < a and
-//! β-index >= b (MATH.md). One O(n_h²) pass; every staircase output is then a few
+//! β-index >= b (`docs/method/fast-paths.md`). One O(n_h²) pass; every staircase output is then a few
 //! lookups.
 
 use crate::grid::cell_index;
@@ -43,7 +43,7 @@ impl Everett {
         self.table[a as usize * self.n1 + b as usize]
     }
 
-    /// `E` at continuous level coordinates for a >= b (MATH.md, "The interpolated
+    /// `E` at continuous level coordinates for a >= b (`docs/method/fast-paths.md`, "The interpolated
     /// output"): each off-diagonal mass spread uniformly over its square cell, each
     /// diagonal mass uniformly along the diagonal α = β of its cell (the reversible
     /// relays). The square spread is exactly the bilinear interpolation of the table;

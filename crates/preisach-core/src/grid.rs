@@ -1,4 +1,4 @@
-//! The discretized Preisach plane (DESIGN.md, "The discrete model"; seed §2.2).
+//! The discretized Preisach plane (`docs/method/model.md`; the paper §2.2).
 //!
 //! Range `(lo, hi)` = (β_m, α_m), `n_h` cells per axis, `n_h + 1` input levels
 //! `v_k = lo + k·Δ`. Cell `(i, j)`, `i <= j`, carries its mass at the cell centre, so
@@ -70,7 +70,7 @@ impl Grid {
     pub fn delta(&self) -> f64 {
         self.delta
     }
-    /// Number of cells n_q = n_h (n_h + 1) / 2 (seed eq. 5).
+    /// Number of cells n_q = n_h (n_h + 1) / 2 (the paper's eq. 5).
     pub fn n_q(&self) -> usize {
         self.n_h * (self.n_h + 1) / 2
     }

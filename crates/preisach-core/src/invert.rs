@@ -1,10 +1,10 @@
-//! Inversion of the discrete Preisach model (seed §4.1): closest match, the paper's
+//! Inversion of the discrete Preisach model (the paper §4.1): closest match, the paper's
 //! linear interpolation between the discrete steps (Fig. 9), and a continuous inverse
 //! of the interpolated model.
 //!
 //! - [`closest_level`]: the closest-match search of Tan et al. (2001). From a fixed
 //!   memory the output after moving to level `k` is non-decreasing in `k` (masses are
-//!   non-negative; MATH.md "Closest match is a search over a monotone function"), so the
+//!   non-negative; `docs/method/fast-paths.md`, "Closest match is a search over a monotone function"), so the
 //!   search is a galloping binary search from the previous level over
 //!   [`PreisachModel::peek_level`]: O(log n_h) peeks worst case, one or two on a smooth
 //!   reference, no state copies, no scan over the levels. Optimal at every sample.
@@ -59,7 +59,7 @@ pub enum Method {
     /// Closest match (Tan et al. 2001): the level whose output is nearest.
     Closest,
     /// The monotone closest match ([`monotone_level`]) smoothed by linear interpolation
-    /// between its steps (seed Fig. 9).
+    /// between its steps (the paper's Fig. 9).
     Interpolated,
     /// Exact inverse of the interpolated (continuous) model, no look-ahead.
     Continuous,
@@ -176,7 +176,7 @@ fn gallop<Y: Fn(u32) -> f64, P: Fn(f64) -> bool>(y: &Y, pred: &P, n: i64, start:
 }
 
 // ---------------------------------------------------------------------------------
-// Closest match (seed §4.1, Tan et al. 2001).
+// Closest match (the paper §4.1, Tan et al. 2001).
 
 /// The closest-match level for reference `r` from memory `mem` (nothing mutated), and
 /// whether `r` is outside the reachable range.
@@ -295,7 +295,7 @@ pub fn monotone_run(
 /// Input position (level coordinate, 0..=n_h) where the interpolated model reaches `r`
 /// from memory `imem` (nothing mutated), and whether `r` is outside the reachable range.
 ///
-/// `y_c` is continuous and non-decreasing in the position (MATH.md, "The interpolated
+/// `y_c` is continuous and non-decreasing in the position (`docs/method/fast-paths.md`, "The interpolated
 /// output"), so the solution set is an interval; the point of it nearest the current
 /// input is bracketed by a galloping search over the levels, then found by
 /// regula falsi (Illinois): `y_c` is linear between levels and stored extrema, so once
@@ -430,7 +430,7 @@ fn continuous_advance(model: &PreisachModel, imem: &mut InterpMemory, r: f64, to
 }
 
 // ---------------------------------------------------------------------------------
-// Linear interpolation between the steps of the closest match (seed §4.1, Fig. 9).
+// Linear interpolation between the steps of the closest match (the paper §4.1, Fig. 9).
 
 /// Knot value at a riser: the midpoint of the step from `a` to `b`.
 #[inline(always)]
@@ -449,7 +449,7 @@ fn lerp_step(u_prev: f64, v: f64, t: u64, t_tgt: u64) -> f64 {
     }
 }
 
-/// Offline interpolation of a closest-match signal `u_cm` (seed Fig. 9; [`invert`] feeds
+/// Offline interpolation of a closest-match signal `u_cm` (the paper's Fig. 9; [`invert`] feeds
 /// it the monotone closest match, [`monotone_run`]).
 ///
 /// Knots: `(0, u_cm[0])` and, at every step `t_s` from level `a` to level `b`,

@@ -1,5 +1,5 @@
-//! The memory staircase: the stack of dominant extrema with wiping-out (seed §2.1,
-//! Fig. 3; MATH.md). Generic over the coordinate: integer level indices for the
+//! The memory staircase: the stack of dominant extrema with wiping-out (the paper §2.1,
+//! Fig. 3; `docs/method/fast-paths.md`). Generic over the coordinate: integer level indices for the
 //! stepwise model, continuous level positions for the interpolated one.
 //!
 //! Layout: `turns = [m_0, M_1, m_1, M_2, …]` alternates minima (even positions) and
@@ -145,7 +145,7 @@ impl<T: Copy + PartialOrd> Memory<T> {
     }
 
     /// S⁺ the state would have after moving the input to `c`, without mutating
-    /// anything: the wiped extrema are found by binary search (MATH.md, "Closest match
+    /// anything: the wiped extrema are found by binary search (`docs/method/fast-paths.md`, "Closest match
     /// is a search over a monotone function"). O(log depth).
     pub fn peek_s_plus<E: EverettFn<T>>(&self, c: T, e: &E) -> f64 {
         let n = self.turns.len();

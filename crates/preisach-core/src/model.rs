@@ -11,7 +11,7 @@ pub type StepMemory = Memory<u32>;
 /// Memory of the interpolated model (continuous level positions).
 pub type InterpMemory = Memory<f64>;
 
-/// The discrete Preisach operator `y = sum w R + offset` (seed eq. 4).
+/// The discrete Preisach operator `y = sum w R + offset` (the paper's eq. 4).
 #[derive(Debug, Clone, PartialEq)]
 pub struct PreisachModel {
     grid: Grid,
@@ -155,7 +155,7 @@ impl PreisachModel {
     /// One sample of the interpolated model: masses spread uniformly over their cells,
     /// so the output is continuous in the input, piecewise linear between levels and
     /// equal to the stepwise model whenever the input and its extrema sit on levels
-    /// (MATH.md).
+    /// (`docs/method/fast-paths.md`).
     #[inline]
     pub fn step_interpolated(&self, mem: &mut InterpMemory, u: f64) -> f64 {
         let e = self.e_interp();

@@ -1,4 +1,4 @@
-//! The relay grid: every cell's relay state held explicitly (seed eq. 1 and 4).
+//! The relay grid: every cell's relay state held explicitly (the paper's eq. 1 and 4).
 //! O(n_q) per sample. It is the test oracle for the staircase and the plain
 //! definition the regression rows come from.
 

@@ -111,7 +111,7 @@ pub fn run_loop<C: Compensator + ?Sized>(comp: &mut C, plant: &mut Runtime, refe
 
 /// [`run_loop`] for a compensator whose output lags its input by `preview` samples
 /// (the streaming interpolated inverse with look-ahead L): the reference is known
-/// ahead (feed-forward from a planned trajectory, seed §4.1), so the compensator is
+/// ahead (feed-forward from a planned trajectory, the paper §4.1), so the compensator is
 /// primed with the first `preview` references (outputs discarded, not timed) and then
 /// fed `r[k + preview]` (the last reference repeated at the end) while the plant gets
 /// the compensator output that belongs to `r[k]`.

@@ -1,4 +1,4 @@
-//! Inversion (seed §4.1): closest match against a brute-force oracle, the tie rule, the
+//! Inversion (the paper §4.1): closest match against a brute-force oracle, the tie rule, the
 //! interpolation of Fig. 9 (offline vs streaming), the continuous inverse.
 mod common;
 
@@ -377,7 +377,7 @@ fn interpolated_inverse_is_monotone_on_monotone_reference_segments() {
 
 #[test]
 fn interpolation_passes_through_the_riser_midpoints() {
-    // Hand-computed (seed Fig. 9): steps at t = 3 (0 -> 1) and t = 7 (1 -> 3).
+    // Hand-computed (the paper's Fig. 9): steps at t = 3 (0 -> 1) and t = 7 (1 -> 3).
     let cm = [0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 3.0, 3.0, 3.0];
     let mut u = [0.0; 10];
     interpolate(&cm, None, &mut u);

@@ -1,4 +1,4 @@
-//! pyo3 glue for inversion (seed §4.1): `invert` over a whole reference and the
+//! pyo3 glue for inversion (the paper §4.1): `invert` over a whole reference and the
 //! streaming `InverseStream`. Validation of method/lookahead names lives in the core so
 //! the messages are the same from Rust and Python.
 

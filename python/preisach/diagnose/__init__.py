@@ -1,4 +1,4 @@
-"""Sim-to-real gap diagnosis (DESIGN.md, "Sim-to-real gap diagnosis"; GitHub issue 5).
+"""Sim-to-real gap diagnosis (`docs/method/diagnosis.md`).
 
 ``diagnose(train, holdouts)`` fits the baseline Preisach model on the training record
 (exactly what ``preisach identify TRAIN`` produces), then reports
@@ -30,8 +30,8 @@ import numpy as np
 
 from preisach.chain import Chain, load, sample_period
 from preisach.diagnose.effects import CANDIDATES, FitState, Record, export_state, rate_branch, rmse
-from preisach.diagnose.search import CREEP_TAU_MIN, Effects, Fitter, Trials, calibrate_slow
 from preisach.diagnose.report import GapReport, evidence_text
+from preisach.diagnose.search import CREEP_TAU_MIN, Effects, Fitter, Trials, calibrate_slow
 from preisach.diagnose.where import localize, noise_floor, signatures
 from preisach.model import PreisachModel, PreisachWarning
 
@@ -143,7 +143,10 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
         Candidate fits (and a search's independent trials, while a CPU would otherwise
         idle) run in this many threads (default: up to 2, the CPUs available).
 
-    Returns a :class:`GapReport`.
+    Returns
+    -------
+    GapReport
+        Where the gap lies, which effect causes it, how far it shrinks.
     """
     if workers is None:
         workers = min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
@@ -504,7 +507,8 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
                "score": [h.name for h in hos],
                "parts": [f"{h.name} {half} half" for h in hos for half in ("first", "second")],
                "note": "masses and effect parameters are fitted on the training record only (the slow "
-                       "effects' calibration across records excepted, see fit); every chain is scored on the holdouts, no sample with "
+                       "effects' calibration across records excepted, see fit); every chain is scored on the "
+                       "holdouts, no sample with "
                        "parameters fitted on it. An effect is kept (stepwise) when it shrinks "
                        "the holdout RMSE by min_shrink and by more than half the noise floor, fits the training "
                        "record better, after the first effect worsens none of the parts "

@@ -20,7 +20,8 @@ def evidence_text(name: str, sig: dict[str, dict[str, Any]], train: str, holds: 
     base = (f"holdout RMSE {d['rmse_current']:.4g} -> {d['rmse_after']:.4g} "
             f"({100 * d['score']:.1f} % smaller, noise floor {floor:.3g})")
     if name == "delay":
-        return (f"{base}; residual ~ -d*dh/dt gives d = {_num(1e3 * st.get('lag_ls_s', 0.0))} ms on the training record, "
+        return (f"{base}; residual ~ -d*dh/dt gives d = {_num(1e3 * st.get('lag_ls_s', 0.0))} ms on the training "
+                f"record, "
                 f"phase slope {_num(1e3 * (s.get('phase_slope_s') or 0.0))} ms (a delay: linear phase, flat gain)")
     if name == "lowpass":
         return (f"{base}; gain change at high frequency {s.get('gain_drop_at_high_f', float('nan')):.3g} "
@@ -30,7 +31,8 @@ def evidence_text(name: str, sig: dict[str, dict[str, Any]], train: str, holds: 
         return (f"{base}; residual spectrum peak at {_num(pk[0].get('frequency_hz', float('nan')), ' Hz')} "
                 f"({pk[0].get('prominence_db', float('nan')):.1f} dB above trend); ringing after steps")
     if name == "creep":
-        return f"{base}; residual keeps moving in dwells after steps (dwell/after-step share of samples {s.get('dwell_fraction', 0):.2f})"
+        return (f"{base}; residual keeps moving in dwells after steps (dwell/after-step share of samples "
+                f"{s.get('dwell_fraction', 0):.2f})")
     if name == "drift":
         return (f"{base}; |corr(residual, absolute time)| = {s.get('corr_time', 0):.2f}, "
                 f"|corr(residual, time x output)| = {s.get('corr_time_output', 0):.2f}")
@@ -126,4 +128,5 @@ class GapReport:
         return plot_report(self, directory)
 
     def __repr__(self) -> str:
-        return f"GapReport(dominant_effect={self.dominant_effect!r}, effects={[e['name'] for e in self.effects if e['detected']]})"
+        found = [e["name"] for e in self.effects if e["detected"]]
+        return f"GapReport(dominant_effect={self.dominant_effect!r}, effects={found})"

@@ -29,8 +29,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from preisach.chain import Chain
-from preisach.diagnose.effects import (FitState, Record, _grid_then_parabola, _mode_guess, _parabolic_search,
-                                       rate_branch, rmse)
+from preisach.diagnose.effects import (
+    FitState,
+    Record,
+    _grid_then_parabola,
+    _mode_guess,
+    _parabolic_search,
+    rate_branch,
+    rmse,
+)
 from preisach.model import PreisachModel
 
 Effects = dict[str, dict[str, Any]]

@@ -67,7 +67,7 @@ def spectrum(r: NDArray[np.float64], dt: float) -> tuple[NDArray[np.float64], ND
         acc += np.abs(np.fft.rfft((seg - seg.mean()) * win)) ** 2
         cnt += 1
     psd = acc / max(cnt, 1) * 2 * dt / np.sum(win ** 2)
-    return np.fft.rfftfreq(nseg, dt), np.sqrt(psd)
+    return np.fft.rfftfreq(nseg, dt).astype(np.float64), np.sqrt(psd).astype(np.float64)
 
 
 def peaks(f: NDArray[np.float64], asd: NDArray[np.float64], k: int = 3) -> list[dict[str, float]]:
@@ -79,7 +79,7 @@ def peaks(f: NDArray[np.float64], asd: NDArray[np.float64], k: int = 3) -> list[
     w = max(3, ok.sum() // 40)
     trend = np.convolve(a, np.ones(w) / w, mode="same")
     ex = a - trend
-    out = []
+    out: list[dict[str, float]] = []
     for i in np.argsort(ex)[::-1]:
         if len(out) >= k:
             break
@@ -124,7 +124,8 @@ def localize(name: str, t: NDArray[np.float64], u: NDArray[np.float64], r: NDArr
     for a, b in zip(edges_f[:-1], edges_f[1:]):
         m = (f >= a) & (f < b)
         if m.any():
-            bands.append({"f_lo": a, "f_hi": b if math.isfinite(b) else None, "share_of_power": float(psd[m].sum() / tot_p)})
+            bands.append({"f_lo": a, "f_hi": b if math.isfinite(b) else None,
+                          "share_of_power": float(psd[m].sum() / tot_p)})
     # Input rate: quartiles of |du/dt|.
     rate = np.abs(np.gradient(u, dt))
     qs = np.quantile(rate, [0, 0.25, 0.5, 0.75, 1.0])

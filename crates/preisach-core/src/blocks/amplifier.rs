@@ -1,5 +1,5 @@
 //! Voltage amplifier: gain, output saturation, slew-rate limit.
-//! Input: DAC volts; output: piezo volts (e.g. PDL200, 20 V/V, seed §3.1).
+//! Input: DAC volts; output: piezo volts (e.g. PDL200, 20 V/V, the paper §3.1).
 
 use super::{finite, positive};
 use crate::error::{PreisachError, Result};

@@ -10,10 +10,13 @@
 //!   reversible (anhysteretic) part `slope · (u − lo) + sat · tanh((u − centre)/width)`.
 //!   Serialized by these parameters, never by its masses.
 //!
-//! `output`: `interpolated` (continuous in `u`, MATH.md) or `stepwise` (the staircase).
+//! `output`: `interpolated` (continuous in `u`, `docs/method/fast-paths.md`) or `stepwise` (the staircase).
 //! The memory starts with every relay at −1, or after the input went through
 //! `initial_extrema` (alternating extrema of an unrecorded history, input units); at rest
 //! with an input, it then moved to that input.
+//! Units: input in the operator's input units (piezo volts in the `paper` preset),
+//! output in its output units (µm in the preset). A real stage has no steps: the
+//! interpolated output is the default.
 
 use std::sync::Arc;
 

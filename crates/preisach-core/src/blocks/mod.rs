@@ -1,4 +1,4 @@
-//! Plant blocks (DESIGN.md "Blocks"): one vocabulary for the simulated stage, an
+//! Plant blocks (`docs/method/blocks.md`): one vocabulary for the simulated stage, an
 //! identified model, an identified model plus effects, and the diagnoser.
 //!
 //! A [`Chain`] is a *description*: blocks with continuous parameters (a serde struct per

@@ -1,4 +1,4 @@
-//! Named stages. `paper` mirrors the seed's setup (§3.1, §4.2):
+//! Named stages. `paper` mirrors the paper's setup (§3.1, §4.2):
 //!
 //! | block | what | units |
 //! |---|---|---|
@@ -23,7 +23,7 @@ use super::sensor::{LowpassParams, QuantizerParams, SensorParams};
 use super::vibration::{Mode, VibrationParams};
 use crate::error::{PreisachError, Result};
 
-/// The seed's measurement delay (§4), seconds.
+/// The paper's measurement delay (§4), seconds.
 pub const PAPER_DELAY_S: f64 = 4.58e-4;
 
 /// `delay` override: `true`/`false` for the paper's delay on/off, or seconds.

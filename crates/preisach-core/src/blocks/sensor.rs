@@ -1,7 +1,11 @@
-//! Measurement-side blocks: Butterworth low-pass, pure delay, white noise, ADC
-//! quantizer, and the [`Sensor`] that chains them behind a gain (capacitive gauge:
-//! 1/5 V/µm in the seed's setup, §3.1). `lowpass`, `delay`, `noise` and `quantizer` are
-//! also blocks of their own.
+//! Measurement-side blocks: Butterworth low-pass, pure (fractional) delay, white
+//! noise, ADC quantizer, and the [`Sensor`] that chains them behind a gain
+//! (capacitive gauge: 1/5 V/µm in the paper's setup, §3.1). `lowpass`, `delay`,
+//! `noise` and `quantizer` are also blocks of their own.
+//!
+//! A record starts at rest: the low-pass and the delay start in equilibrium with the
+//! first sample (constant in, constant out from the first sample); noise and
+//! quantizer have no state to settle.
 
 use super::lti::{Discretization, Linear, Lti, Sampling, Section, C};
 use super::rng::Rng;

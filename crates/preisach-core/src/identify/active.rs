@@ -13,32 +13,18 @@
 //! The primal–dual active-set method (Hintermüller, Ito & Kunisch, SIAM J. Optim. 13,
 //! 2002) then moves to the guess {λ > 0} ∪ {mass < 0} and stops when the guess no longer
 //! changes: that is exactly the KKT conditions of the convex QP, so the point is optimal,
-//! with no interior-point tolerance to polish away. The KKT pattern holds every
-//! constraint column; an inactive constraint's row is `−ν_c = 0`, decoupled. One
-//! fill-reducing ordering of the full pattern serves every step ([`super::ldl`]): each
-//! step factors only the coupled (active) constraints' fill under the induced order, a
-//! third of the full pattern's work in the benchmark, then refines iteratively against
-//! the unregularized matrix. A step that switches only a few constraints borders the
-//! last factorization instead ([`Border`]: one triangular solve per switched
-//! constraint, about half of one when solved four at a time).
-//!
-//! The ordering is a nested dissection of the Everett grid where the rows couple nearby
-//! Everett values (sweeps; AMD otherwise, see [`Kkt::order`]). Its top level splits the
-//! unknowns into two uncoupled halves and a separator, and every factorization and solve
-//! then runs the halves on two threads ([`crate::pair`]) before the separator: at
-//! n_h = 40 in the benchmark the whole solve takes 2.4–2.5 ms instead of 3.3 ms with AMD
-//! on one thread (3.0–3.1 ms with the dissection on one thread).
+//! with no interior-point tolerance to polish away. Every KKT system is factored by
+//! clarabel's QDLDL ([`factor`]) in one fill-reducing order per solve ([`Kkt::order`]).
+//! An inactive constraint's row is `−ν_c = 0`, decoupled, so a step factors only its
+//! active constraints' couplings, then refines iteratively against the unregularized
+//! matrix. A step that switches only a few constraints borders the last factorization
+//! instead ([`Border`]: one triangular solve per switched constraint).
 //!
 //! From "all masses free" the method needs a dozen or more factorizations on noisy
 //! sweeps (14 at n_h = 40 in the benchmark). Without a caller's guess it therefore
 //! starts from a few OSQP-style ADMM iterations on the same KKT pattern (values
 //! `[H + σI, Dᵀ; D, −1/ρ]`: one numeric factorization, then only triangular solves)
 //! and takes the cells ADMM left at zero as the first guess: 4 factorizations there.
-//!
-//! The large buffers (objective triplets, KKT matrix, factor) are kept per thread for
-//! the next solve ([`Scratch`]): on the benchmark's VM a fresh 4 KiB page costs about
-//! 2 µs on first touch, which was 0.4–0.5 ms of a 4.3 ms solve at n_h = 40. Only memory
-//! is reused; every solve builds, orders and factors its own problem.
 //!
 //! Block switching can cycle when H is not an M-matrix (degenerate problems: many
 //! unobserved Everett values, masses at zero with zero multipliers). When the number of
@@ -48,13 +34,13 @@
 //! single-pivot rule would terminate, but one flip per factorization is slower than the
 //! interior point.)
 
-use super::ldl::{amd_order, nd_order, Ldl, Pattern};
-#[cfg(test)]
-use super::qp::everett_objective;
-use super::qp::{everett_objective_into, Problem, Solution};
-use super::rows::everett_var;
-use crate::error::Result;
-use std::cell::RefCell;
+use clarabel::algebra::CscMatrix;
+use clarabel::qdldl::{QDLDLError, QDLDLFactorisation, QDLDLSettingsBuilder};
+
+use super::order::{amd_order, nd_order, Pattern};
+use super::qp::{cell_coords, csc_upper, everett_objective, key, Problem, Solution};
+use super::rows::{everett_coords, mass_from_everett};
+use crate::error::{PreisachError, Result};
 
 /// Bordering instead of refactoring (see [`Border`]): at most this many changed
 /// constraints, and new ones only while their solves cost less than this share of a
@@ -73,39 +59,10 @@ const ADMM_ITERS: usize = 20;
 const ADMM_RHO: f64 = 0.1;
 const ADMM_ALPHA: f64 = 1.6;
 
-/// The solver's large buffers, kept per thread for the next solve: fresh memory costs a
-/// page fault per 4 KiB on first touch (about 2 µs each in the benchmark's VM, 0.5 ms of
-/// a 4 ms solve at n_h = 40), reused memory none. Only the buffers are reused, never
-/// values: every solve rebuilds and refactors from its own problem.
-#[derive(Default)]
-struct Scratch {
-    trip: Vec<(u64, f64)>,
-    bucket: Vec<(u32, f64)>,
-    kkt: Kkt,
-    fact: Ldl,
-    kval: Vec<f64>,
-}
-
-/// Scratch larger than this is released after the solve rather than kept.
-const SCRATCH_KEEP: usize = 32 << 20;
-
-impl Scratch {
-    fn bytes(&self) -> usize {
-        16 * (self.trip.capacity() + self.bucket.capacity() + self.kkt.val.capacity())
-            + 8 * (self.kval.capacity() + self.kkt.colptr.capacity() + self.kkt.rowval.capacity())
-            + 8 * (self.kkt.reg.capacity() + self.kkt.diag.capacity() + self.kkt.dval.capacity())
-            + self.fact.capacity_bytes()
-    }
-}
-
-thread_local! {
-    static SCRATCH: RefCell<Scratch> = RefCell::new(Scratch::default());
-}
-
 /// The KKT matrix (upper triangle, CSC) with the positions needed to switch a
 /// constraint on or off.
 #[derive(Default)]
-struct Kkt {
+pub(super) struct Kkt {
     n: usize,
     m: usize,
     colptr: Vec<usize>,
@@ -121,123 +78,47 @@ struct Kkt {
 }
 
 impl Kkt {
-    #[cfg(test)]
-    fn build(pb: &Problem, trip: Vec<(u64, f64)>) -> Self {
-        let mut k = Kkt::default();
-        k.build_in(pb, &trip, &mut Vec::new());
-        k
+    /// The KKT matrix of the objective (its triplets, see [`everett_objective`]) with
+    /// every constraint column, all constraints inactive.
+    pub(super) fn build(pb: &Problem, mut trip: Vec<(u64, f64)>) -> Result<Self> {
+        let n = pb.rows.n_vars() + 1;
+        let m = n - 1;
+        // Column n + c: the mass of cell c in Everett values, then the multiplier's
+        // diagonal (added by `csc_upper`, the last entry of the column).
+        let mut d = Vec::new();
+        for (c, &(i, j)) in cell_coords(pb.rows.n_h).iter().enumerate() {
+            mass_from_everett(i, j, &mut d);
+            trip.extend(d.iter().map(|&(k, v)| (key(k, n + c), v)));
+        }
+        let a = csc_upper(n + m, trip)?;
+        let diag: Vec<usize> = a.colptr[1..].iter().map(|&p| p - 1).collect();
+        let dval = (n..n + m).flat_map(|c| a.nzval[a.colptr[c]..diag[c]].iter().copied()).collect();
+        let mut kkt = Kkt { n, m, colptr: a.colptr, rowval: a.rowval, val: a.nzval, reg: vec![0.0; n + m], diag, dval };
+        for c in 0..m {
+            kkt.set(c, false, 0.0);
+        }
+        Ok(kkt)
     }
 
-    /// Build from the objective's triplets in this matrix's buffers (`bucket`: scratch).
-    fn build_in(&mut self, pb: &Problem, trip: &[(u64, f64)], bucket: &mut Vec<(u32, f64)>) {
-        let n_q = pb.rows.n_vars();
-        let n = n_q + 1;
-        let m = n_q;
-        // Bucket the triplets by column (a counting sort), then sum each column's
-        // duplicates and sort its distinct rows: cheaper than one sort of all the
-        // triplets.
-        let mut start = vec![0usize; n + 1];
-        for t in trip {
-            start[(t.0 >> 32) as usize + 1] += 1;
-        }
-        for c in 0..n {
-            start[c + 1] += start[c];
-        }
-        let mut next = start.clone();
-        bucket.clear();
-        bucket.resize(trip.len(), (0u32, 0.0f64));
-        for &(k, v) in trip {
-            let c = (k >> 32) as usize;
-            bucket[next[c]] = ((k & 0xffff_ffff) as u32, v);
-            next[c] += 1;
-        }
-        let Kkt { colptr, rowval, val, reg, diag, dval, .. } = self;
-        colptr.clear();
-        colptr.resize(n + m + 1, 0);
-        rowval.clear();
-        rowval.reserve(bucket.len() + n + 5 * m);
-        val.clear();
-        val.reserve(bucket.len() + n + 5 * m);
-        // Duplicates are summed in a dense accumulator (`acc`, rows marked by `seen`),
-        // so only the distinct rows are sorted: the offset's column holds a triplet per
-        // row entry (thousands) but only n distinct rows. (Sorting the triplets was 40 %
-        // of this build at n_h = 40.)
-        let mut seen = vec![usize::MAX; n];
-        let mut acc = vec![0.0f64; n];
-        let mut list: Vec<usize> = Vec::new();
-        for c in 0..n {
-            list.clear();
-            for &(r, v) in &bucket[start[c]..start[c + 1]] {
-                let r = r as usize;
-                if seen[r] == c {
-                    acc[r] += v;
-                } else {
-                    seen[r] = c;
-                    acc[r] = v;
-                    list.push(r);
-                }
-            }
-            // The diagonal, present even where no row observes the variable.
-            if seen[c] != c {
-                acc[c] = 0.0;
-                list.push(c);
-            }
-            list.sort_unstable();
-            for &r in &list {
-                rowval.push(r);
-                val.push(acc[r]);
-            }
-            colptr[c + 1] = rowval.len();
-        }
-        // The mass of cell (i, j) in Everett values, in increasing index order:
-        // −E(j, i) + E(j, i+1) + E(j+1, i) − E(j+1, i+1) (see `mass_from_everett`; the
-        // terms with a <= b vanish on and next to the diagonal).
-        dval.clear();
-        dval.reserve(4 * m);
-        let mut c = 0;
-        for i in 0..pb.rows.n_h {
-            for j in i..pb.rows.n_h {
-                let terms = [
-                    (j > i, everett_var_or0(j, i), -1.0),
-                    (j > i + 1, everett_var_or0(j, i + 1), 1.0),
-                    (true, everett_var(j + 1, i), 1.0),
-                    (j > i, everett_var_or0(j + 1, i + 1), -1.0),
-                ];
-                for &(present, k, v) in &terms {
-                    if present {
-                        rowval.push(k);
-                        val.push(v);
-                        dval.push(v);
-                    }
-                }
-                rowval.push(n + c);
-                val.push(0.0);
-                colptr[n + c + 1] = rowval.len();
-                c += 1;
-            }
-        }
-        diag.clear();
-        diag.extend((0..n + m).map(|c| colptr[c + 1] - 1));
-        reg.clear();
-        reg.resize(n + m, 0.0);
-        self.n = n;
-        self.m = m;
+    /// The objective's Hessian H (upper triangle, CSC): the first n columns.
+    pub(super) fn hessian(&self) -> CscMatrix<f64> {
+        let (n, nnz) = (self.n, self.colptr[self.n]);
+        CscMatrix::new(n, n, self.colptr[..=n].to_vec(), self.rowval[..nnz].to_vec(), self.val[..nnz].to_vec())
     }
 
-    /// Fill-reducing elimination order, and the KKT positions where the top level's two
-    /// uncoupled halves end (`[0, 0]`: no split). The order is computed on the pattern
+    /// Fill-reducing elimination order of the KKT matrix. It is computed on the pattern
     /// with the constraints eliminated (`H + DᵀD`, each mass a clique of its four
     /// Everett values: half the nodes, the same fill), each multiplier then placed just
     /// before the first of its Everett values. Its elimination creates exactly that
     /// clique, so the factor's fill is that of `H + DᵀD` plus four entries per
-    /// constraint, as an order of the whole KKT pattern gives (±5 % with AMD on the
-    /// benchmark sweeps and random inputs), in about 20 % less ordering time.
+    /// constraint, as an order of the whole KKT pattern gives.
     ///
     /// On `H + DᵀD`: nested dissection by the Everett values' grid positions
-    /// ([`nd_order`]) where the couplings are local, else AMD. On the benchmark record it
-    /// takes 0.17 ms instead of AMD's 0.52 ms for about the same fill, and its halves
-    /// let the factorizations run on two threads.
-    fn order(&self) -> Result<(Vec<usize>, [usize; 2])> {
+    /// ([`nd_order`]) where the couplings are local, as sweeps make them, else AMD. On
+    /// the benchmark sweeps it takes the solve from 6.2 to 5.6 ms at n_h = 40 and from
+    /// 27.9 to 23.8 ms at n_h = 60 against AMD on `H + DᵀD` (QDLDL's own AMD order of
+    /// the whole KKT pattern: 6.2 and 28.3 ms).
+    fn order(&self) -> Result<Vec<usize>> {
         let (n, m) = (self.n, self.m);
         let dcol = |c: usize| self.colptr[n + c]..self.colptr[n + c + 1] - 1;
         // Constraints touching each Everett value.
@@ -285,10 +166,15 @@ impl Kkt {
         let pat = Pattern { colptr: &colptr, rowval: &rowval };
         // Nested dissection on the Everett grid's (a, b) positions where the couplings
         // are local, AMD where not (the offset, coupled to every value, comes last in both).
-        let xy: Vec<[u32; 2]> = (0..n).map(|v| if v + 1 < n { everett_pos(v) } else { [0, 0] }).collect();
-        let (xorder, halves) = match nd_order(&pat, &xy) {
-            Some(o) => o,
-            None => (amd_order(&pat)?, [0, 0]),
+        let xy: Vec<[u32; 2]> = (0..n)
+            .map(|v| {
+                let (a, b) = if v + 1 < n { everett_coords(v) } else { (0, 0) };
+                [a as u32, b as u32]
+            })
+            .collect();
+        let xorder = match nd_order(&pat, &xy) {
+            Some((o, _)) => o,
+            None => amd_order(&pat)?,
         };
         // Each multiplier just before the first of its Everett values.
         let mut pos = vec![0usize; n];
@@ -313,21 +199,11 @@ impl Kkt {
             bnext[f] += 1;
         }
         let mut order = Vec::with_capacity(n + m);
-        let mut split = [0usize; 2];
-        for (k, &i) in xorder.iter().enumerate() {
+        for &i in &xorder {
             order.extend_from_slice(&before[bstart[i]..bstart[i + 1]]);
             order.push(i);
-            if k + 1 == halves[0] {
-                split[0] = order.len();
-            }
-            if k + 1 == halves[0] + halves[1] {
-                split[1] = order.len();
-            }
         }
-        if halves[0] == 0 || halves[1] == 0 {
-            split = [0, 0];
-        }
-        Ok((order, split))
+        Ok(order)
     }
 
     /// Set constraint `c` active (mass fixed to 0) or inactive (multiplier fixed to 0).
@@ -380,50 +256,25 @@ impl Kkt {
     }
 }
 
-/// `[a, b]` of the Everett value with index `v` (the inverse of [`everett_var`]).
-fn everett_pos(v: usize) -> [u32; 2] {
-    // a(a − 1)/2 <= v < a(a + 1)/2.
-    let mut a = ((1.0 + (1.0 + 8.0 * v as f64).sqrt()) / 2.0) as usize;
-    while a * (a - 1) / 2 > v {
-        a -= 1;
-    }
-    while a * (a + 1) / 2 <= v {
-        a += 1;
-    }
-    [a as u32, (v - a * (a - 1) / 2) as u32]
-}
-
-/// `everett_var(a, b)`, or 0 where a <= b (a term the caller drops).
-fn everett_var_or0(a: usize, b: usize) -> usize {
-    if a > b {
-        everett_var(a, b)
-    } else {
-        0
-    }
-}
-
 /// Solve the identification QP exactly by the primal–dual active-set method, starting
 /// from the guess `start` (cells believed to have zero mass; `None` = only the fixed
 /// ones). `Ok(None)` means it did not converge within `max_steps` (use the interior
 /// point instead).
 pub fn solve_active(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32) -> Result<Option<Solution>> {
-    // (Taken, not borrowed: a nested solve would find it empty, never in use.)
-    let mut scratch = SCRATCH.with(|s| s.take());
-    let out = solve_in(pb, start, max_steps, &mut scratch);
-    if scratch.bytes() <= SCRATCH_KEEP {
-        SCRATCH.with(|s| *s.borrow_mut() = scratch);
-    }
-    out
+    let (trip, q) = everett_objective(pb);
+    solve_kkt(pb, Kkt::build(pb, trip)?, &q, start, max_steps)
 }
 
-fn solve_in(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32, scratch: &mut Scratch) -> Result<Option<Solution>> {
+/// [`solve_active`] from the problem's KKT matrix (all constraints inactive) and the
+/// objective's linear term `q`.
+pub(super) fn solve_kkt(
+    pb: &Problem,
+    mut kkt: Kkt,
+    q: &[f64],
+    start: Option<Vec<bool>>,
+    max_steps: u32,
+) -> Result<Option<Solution>> {
     let n_q = pb.rows.n_vars();
-    let Scratch { trip, bucket, kkt, fact, kval } = scratch;
-    // The factorizations and solves below split over two threads: start the helper
-    // spinning now, it takes tens of microseconds to wake.
-    let _session = crate::pair::session();
-    let q = everett_objective_into(pb, trip);
-    kkt.build_in(pb, trip, bucket);
     let (n, m) = (kkt.n, kkt.m);
     let dim = n + m;
     let hmax = (0..n).map(|i| kkt.val[kkt.diag[i]]).fold(0.0f64, f64::max);
@@ -447,46 +298,32 @@ fn solve_in(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32, scratch: &mu
         }
         _ => pb.zero.to_vec(),
     };
-    // Scale of the objective in mass coordinates: a relay column is ±1 like the
-    // offset's, so the offset's diagonal is the masses' Hessian diagonal too.
-    let hoff = kkt.val[kkt.diag[n_q]].max(1e-300);
-    let (rho, sigma) = (ADMM_RHO * hoff, 1e-6 * hoff);
+    let mut kval = vec![0.0; kkt.val.len()];
+    let order = kkt.order()?;
     if warm {
+        // Scale of the objective in mass coordinates: a relay column is ±1 like the
+        // offset's, so the offset's diagonal is the masses' Hessian diagonal too.
+        let hoff = kkt.val[kkt.diag[n_q]].max(1e-300);
+        let (rho, sigma) = (ADMM_RHO * hoff, 1e-6 * hoff);
         for i in 0..n {
             kkt.reg[i] = sigma;
         }
         for c in 0..m {
             kkt.set_admm(c, if pb.zero[c] { 1e3 * rho } else { rho });
         }
-    } else {
-        for (c, &a) in active.iter().enumerate() {
-            kkt.set(c, a, eps);
-        }
-    }
-    kval.clear();
-    kval.resize(kkt.val.len(), 0.0);
-    kkt.regularized(kval);
-    let mut signs = vec![1i8; dim];
-    signs[n..].iter_mut().for_each(|s| *s = -1);
-    let (order, split) = kkt.order()?;
-    fact.analyze(&Pattern { colptr: &kkt.colptr, rowval: &kkt.rowval }, &order, &signs);
-    fact.set_split(split);
-    if warm {
-        if !fact.factor(kval, None) {
-            return Ok(None);
-        }
-        let z = admm_masses(kkt, fact, &q, pb.zero, rho, sigma);
+        kkt.regularized(&mut kval);
+        let Some(mut f) = factor(&kkt, &kval, None, &order)? else { return Ok(None) };
+        let z = admm_masses(&kkt, &mut f, q, pb.zero, rho, sigma);
         for c in 0..m {
             active[c] = pb.zero[c] || z[c] <= 0.0;
         }
         for i in 0..n {
             kkt.reg[i] = eps;
         }
-        for (c, &a) in active.iter().enumerate() {
-            kkt.set(c, a, eps);
-        }
     }
-    let mut coupled = vec![true; dim];
+    for (c, &a) in active.iter().enumerate() {
+        kkt.set(c, a, eps);
+    }
 
     let qmax = q.iter().fold(0.0f64, |a, v| a.max(v.abs())).max(1e-300);
     let mut b = vec![0.0; dim];
@@ -500,7 +337,8 @@ fn solve_in(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32, scratch: &mu
     let mut w = vec![0.0; m];
     let mut best_inf = usize::MAX;
     let mut stall = 0;
-    // Active set of the matrix last factored (None: none yet for the active-set steps).
+    // The last factorization and its active set (none yet).
+    let mut fact: Option<Fact> = None;
     let mut base: Option<Vec<bool>> = None;
     let mut border = Border::default();
     for step in 1..=max_steps {
@@ -509,32 +347,33 @@ fn solve_in(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32, scratch: &mu
             Some(b0) => (0..m).filter(|&c| b0[c] != active[c]).collect(),
             None => Vec::new(),
         };
-        // New border columns are solved four at a time, at about two solves' cost.
+        // One solve per new border column.
         let new = changed.iter().filter(|&&c| !border.has(c)).count();
-        let cost = 2.0 * new.div_ceil(4) as f64;
-        let bordered = base.is_some()
-            && changed.len() <= BORDER_MAX
-            && cost < BORDER_SHARE * fact.refactor_in_solves()
-            // (A singular Schur complement: refactor instead.)
-            && border.update(&changed, &active, kkt, fact, eps);
-        if !bordered {
-            // Only the active constraints' rows: an inactive one is `−ν_c = 0`, decoupled.
-            coupled[n..].copy_from_slice(&active);
-            kkt.regularized(kval);
-            if !fact.factor(kval, Some(&coupled)) {
-                return Ok(None);
+        let bordered = match (&base, &mut fact) {
+            (Some(_), Some(f)) => {
+                changed.len() <= BORDER_MAX
+                    && (new as f64) < BORDER_SHARE * refactor_in_solves(f)
+                    // (A singular Schur complement: refactor instead.)
+                    && border.update(&changed, &active, &kkt, f, eps)
             }
+            _ => false,
+        };
+        if !bordered {
+            kkt.regularized(&mut kval);
+            let Some(f) = factor(&kkt, &kval, Some(&active), &order)? else { return Ok(None) };
+            fact = Some(f);
             base = Some(active.clone());
             border.clear();
         }
+        let Some(fact) = fact.as_mut() else { return Ok(None) };
         v.copy_from_slice(&b);
-        border.solve(kkt, fact, &mut v);
+        border.solve(&kkt, fact, &mut v);
         // Iterative refinement against the unregularized matrix: to 1e-9 while the step
         // is only a guess to correct (the signs decide), to 1e-13 once it satisfies
         // every condition. Where that matrix is singular (Everett values no row
         // observes, masses free), refinement need not contract: keep the best iterate
         // and stop as soon as the residual grows.
-        let mut res = residual(kkt, &b, &v, &mut kv, &mut r);
+        let mut res = residual(&kkt, &b, &v, &mut kv, &mut r);
         let (mut tol_w, mut tol_l): (f64, f64);
         let mut pass = 0;
         let mut stuck = false;
@@ -543,10 +382,10 @@ fn solve_in(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32, scratch: &mu
             let target = if tight { 1e-13 } else { 1e-9 } * qmax;
             while res > target && pass < REFINE && !stuck && res.is_finite() {
                 best.copy_from_slice(&v);
-                border.solve(kkt, fact, &mut r);
+                border.solve(&kkt, fact, &mut r);
                 v.iter_mut().zip(&r).for_each(|(x, d)| *x += d);
                 pass += 1;
-                let rn = residual(kkt, &b, &v, &mut kv, &mut r);
+                let rn = residual(&kkt, &b, &v, &mut kv, &mut r);
                 // A NaN must not pass (`rn >= res` is false for it).
                 if rn.is_nan() || rn >= res {
                     v.copy_from_slice(&best);
@@ -626,6 +465,53 @@ fn solve_in(pb: &Problem, start: Option<Vec<bool>>, max_steps: u32, scratch: &mu
     Ok(None)
 }
 
+/// Clarabel's QDLDL factorization of a quasi-definite matrix.
+type Fact = QDLDLFactorisation<f64>;
+
+/// Factor the KKT matrix with values `kval` in the elimination order `order` (pivot k is
+/// index `order[k]`), coupling only the constraints in `coupled` (all when `None`): an
+/// uncoupled constraint's row is `−ν_c = 0`, so its couplings are left out of the
+/// pattern, and a step's factorization costs what its active constraints' system costs
+/// (QDLDL's symbolic analysis, an elimination tree, is cheap next to it). `None` on a
+/// zero or non-finite pivot.
+fn factor(kkt: &Kkt, kval: &[f64], coupled: Option<&[bool]>, order: &[usize]) -> Result<Option<Fact>> {
+    let (n, dim) = (kkt.n, kkt.n + kkt.m);
+    let mut colptr = Vec::with_capacity(dim + 1);
+    let mut rowval = Vec::with_capacity(kkt.rowval.len());
+    let mut nzval = Vec::with_capacity(kkt.rowval.len());
+    colptr.push(0);
+    for j in 0..dim {
+        let (s, d) = (kkt.colptr[j], kkt.diag[j]);
+        let s = if j < n || coupled.is_none_or(|a| a[j - n]) { s } else { d };
+        rowval.extend_from_slice(&kkt.rowval[s..=d]);
+        nzval.extend_from_slice(&kval[s..=d]);
+        colptr.push(rowval.len());
+    }
+    let mat = CscMatrix::new(dim, dim, colptr, rowval, nzval);
+    let signs = (0..dim).map(|i| if i < n { 1 } else { -1 }).collect();
+    let settings = QDLDLSettingsBuilder::default()
+        .Dsigns(signs)
+        .perm(order.to_vec())
+        .build()
+        .map_err(|e| PreisachError::Solver(format!("qdldl settings: {e}")))?;
+    match QDLDLFactorisation::new(&mat, Some(settings)) {
+        Ok(f) if f.D.iter().all(|d| d.is_finite()) => Ok(Some(f)),
+        Ok(_) | Err(QDLDLError::ZeroPivot) => Ok(None),
+        Err(e) => Err(PreisachError::Solver(format!("qdldl: {e}"))),
+    }
+}
+
+/// Cost of a factorization in triangular solves: its Σ (column count)² over twice its
+/// entries (the up-looking factorization and the two sweeps of a solve run at about the
+/// same speed per entry touched).
+fn refactor_in_solves(f: &Fact) -> f64 {
+    let (sq, nnz) = f.L.colptr.windows(2).fold((0.0, 0.0), |(sq, nnz), w| {
+        let k = (w[1] - w[0]) as f64;
+        (sq + k * k, nnz + k)
+    });
+    sq / (2.0 * nnz).max(1.0)
+}
+
 /// Solves with the KKT matrix of the current active set from the factorization `K₀` of an
 /// earlier one. Each constraint whose state changed borders `K₀` with one row and column
 /// (a constraint switched on: its row `D_c x − ε μ = r_c` with the new multiplier μ; one
@@ -668,29 +554,23 @@ impl Border {
 
     /// Border the factored matrix with the constraints in `changed` (their states now
     /// `active`). Returns false if the Schur complement is singular.
-    fn update(&mut self, changed: &[usize], active: &[bool], kkt: &Kkt, fact: &mut Ldl, eps: f64) -> bool {
+    fn update(&mut self, changed: &[usize], active: &[bool], kkt: &Kkt, fact: &mut Fact, eps: f64) -> bool {
         self.cols.retain(|e| changed.contains(&e.0));
         let dim = kkt.n + kkt.m;
         let fresh: Vec<usize> = changed.iter().copied().filter(|&c| !self.has(c)).collect();
-        let kn = fresh.len();
-        if kn > 0 {
-            // K₀⁻¹ B for the new columns, all at once.
-            let mut x = vec![0.0; dim * kn];
-            for (j, &c) in fresh.iter().enumerate() {
-                let col = kkt.n + c;
-                if active[c] {
-                    for p in kkt.colptr[col]..kkt.colptr[col + 1] - 1 {
-                        x[kkt.rowval[p] * kn + j] = kkt.dval[p - kkt.colptr[kkt.n] - c];
-                    }
-                } else {
-                    x[col * kn + j] = 1.0;
+        // K₀⁻¹ B for the new columns.
+        for c in fresh {
+            let col = kkt.n + c;
+            let mut w = vec![0.0; dim];
+            if active[c] {
+                for p in kkt.colptr[col]..kkt.colptr[col + 1] - 1 {
+                    w[kkt.rowval[p]] = kkt.dval[p - kkt.colptr[kkt.n] - c];
                 }
+            } else {
+                w[col] = 1.0;
             }
-            fact.solve_many(&mut x, kn);
-            for (j, &c) in fresh.iter().enumerate() {
-                let w: Vec<f64> = (0..dim).map(|i| x[i * kn + j]).collect();
-                self.cols.push((c, active[c], w));
-            }
+            fact.solve(&mut w);
+            self.cols.push((c, active[c], w));
         }
         let k = self.cols.len();
         self.lu.clear();
@@ -730,7 +610,7 @@ impl Border {
     }
 
     /// Solve in place with the current active set's (regularized) KKT matrix.
-    fn solve(&mut self, kkt: &Kkt, fact: &mut Ldl, x: &mut [f64]) {
+    fn solve(&mut self, kkt: &Kkt, fact: &mut Fact, x: &mut [f64]) {
         let k = self.cols.len();
         if k == 0 {
             fact.solve(x);
@@ -788,7 +668,7 @@ fn residual(kkt: &Kkt, b: &[f64], v: &[f64], kv: &mut [f64], r: &mut [f64]) -> f
 /// OSQP-style ADMM on `min ½xᵀHx + qᵀx` s.t. `D x = z`, `z >= 0` (`z = 0` on the fixed
 /// cells), with `fact` holding `[H + σI, Dᵀ; D, −1/ρ]`. Returns the masses `z` after
 /// [`ADMM_ITERS`] iterations (zero where the guess is "active").
-fn admm_masses(kkt: &Kkt, fact: &mut Ldl, q: &[f64], zero: &[bool], rho: f64, sigma: f64) -> Vec<f64> {
+fn admm_masses(kkt: &Kkt, fact: &mut Fact, q: &[f64], zero: &[bool], rho: f64, sigma: f64) -> Vec<f64> {
     let (n, m) = (kkt.n, kkt.m);
     let mut x = vec![0.0; n];
     let mut z = vec![0.0; m];
@@ -826,12 +706,62 @@ mod tests {
     use crate::grid::Grid;
     use crate::identify::rows::build_rows;
 
-    #[test]
-    fn everett_positions_invert_the_variable_index() {
-        for a in 1..=300usize {
-            for b in 0..a {
-                assert_eq!(everett_pos(everett_var(a, b)), [a as u32, b as u32]);
+    /// `K x` with only the entries between coupled indices (all rows `< n`; constraint
+    /// `c` at `n + c` when `active[c]`), the regularized values, computed densely.
+    fn live_product(kkt: &Kkt, kval: &[f64], active: &[bool], x: &[f64]) -> Vec<f64> {
+        let dim = kkt.n + kkt.m;
+        let on = |i: usize| i < kkt.n || active[i - kkt.n];
+        let mut k = vec![0.0; dim * dim];
+        for j in 0..dim {
+            let col = kkt.colptr[j]..kkt.colptr[j + 1];
+            for (&i, &v) in kkt.rowval[col.clone()].iter().zip(&kval[col]) {
+                if i == j || (on(i) && on(j)) {
+                    k[i * dim + j] = v;
+                    k[j * dim + i] = v;
+                }
             }
+        }
+        (0..dim).map(|i| (0..dim).map(|j| k[i * dim + j] * x[j]).sum()).collect()
+    }
+
+    /// The KKT matrix of the identification problem of `u`, `y` on [0, 1] with n_h
+    /// levels, the Everett values regularized by `eps`.
+    fn test_kkt(n_h: usize, u: &[f64], y: &[f64], eps: f64) -> Kkt {
+        let grid = Grid::new(0.0, 1.0, n_h).unwrap();
+        let rows = build_rows(&grid, u, y, false);
+        let zero = vec![false; grid.n_q()];
+        let pb = Problem { rows: &rows, mu: 0.5, scale: 1.0, zero: &zero, reg: 0.0 };
+        let (trip, _) = everett_objective(&pb);
+        let mut kkt = Kkt::build(&pb, trip).unwrap();
+        kkt.reg[..kkt.n].fill(eps);
+        kkt
+    }
+
+    #[test]
+    fn factor_of_the_active_constraints_solves_their_kkt_system() {
+        let u: Vec<f64> =
+            (0..5000).map(|k| 0.5 + 0.55 * (k as f64 * 0.0071).sin() * (k as f64 * 0.0003).cos()).collect();
+        let y: Vec<f64> = u.iter().enumerate().map(|(k, x)| x * x + 0.02 * (k as f64 * 0.77).sin()).collect();
+        // (Regularized enough to be well conditioned: the residual is then rounding.)
+        let eps = 1e-3;
+        let mut kkt = test_kkt(9, &u, &y, eps);
+        let (n, m) = (kkt.n, kkt.m);
+        let order = kkt.order().unwrap();
+        let mut kval = vec![0.0; kkt.val.len()];
+        for pattern in [0usize, 2, 3, 7] {
+            let active: Vec<bool> = (0..m).map(|c| pattern > 0 && c % pattern == 0).collect();
+            for (c, &a) in active.iter().enumerate() {
+                kkt.set(c, a, eps);
+            }
+            kkt.regularized(&mut kval);
+            let mut f = factor(&kkt, &kval, Some(&active), &order).unwrap().unwrap();
+            let b: Vec<f64> = (0..n + m).map(|i| (i as f64 * 0.37).cos()).collect();
+            let mut x = b.clone();
+            f.solve(&mut x);
+            let kx = live_product(&kkt, &kval, &active, &x);
+            let err = b.iter().zip(&kx).fold(0.0f64, |e, (a, c)| e.max((a - c).abs()));
+            let scale = x.iter().fold(0.0f64, |e, v| e.max(v.abs())) * kval.iter().fold(0.0f64, |e, v| e.max(v.abs()));
+            assert!(err < 1e-12 * scale, "pattern {pattern}: residual {err}, |K| |x| {scale}");
         }
     }
 
@@ -839,8 +769,6 @@ mod tests {
     fn bordered_solve_equals_a_refactorization_after_constraints_switch() {
         // A small noisy identification problem; factor the KKT matrix of one active set,
         // switch some constraints on and some off, and solve both ways.
-        let n_h = 12;
-        let grid = Grid::new(0.0, 1.0, n_h).unwrap();
         let n = 20_000;
         let u: Vec<f64> = (0..n)
             .map(|k| {
@@ -849,30 +777,18 @@ mod tests {
             })
             .collect();
         let y: Vec<f64> = u.iter().enumerate().map(|(k, x)| x * x + 0.01 * (k as f64 * 0.37).cos()).collect();
-        let rows = build_rows(&grid, &u, &y, false);
-        let zero = vec![false; grid.n_q()];
-        let pb = Problem { rows: &rows, mu: 0.5, scale: 1.0, zero: &zero, reg: 0.0 };
-        let (trip, _) = everett_objective(&pb);
-        let mut kkt = Kkt::build(&pb, trip);
-        let (nv, m) = (kkt.n, kkt.m);
-        let dim = nv + m;
         let eps = 1e-6;
-        for i in 0..nv {
-            kkt.reg[i] = eps;
-        }
+        let mut kkt = test_kkt(12, &u, &y, eps);
+        let dim = kkt.n + kkt.m;
+        let m = kkt.m;
         let mut active: Vec<bool> = (0..m).map(|c| c % 3 == 0).collect();
         for (c, &a) in active.iter().enumerate() {
             kkt.set(c, a, eps);
         }
-        let signs: Vec<i8> = (0..dim).map(|i| if i < nv { 1 } else { -1 }).collect();
-        let pat = Pattern { colptr: &kkt.colptr.clone(), rowval: &kkt.rowval.clone() };
-        let order = amd_order(&pat).unwrap();
-        let mut fact = Ldl::new(&pat, &order, &signs);
+        let order = kkt.order().unwrap();
         let mut kval = vec![0.0; kkt.val.len()];
-        let mut coupled = vec![true; dim];
-        coupled[nv..].copy_from_slice(&active);
         kkt.regularized(&mut kval);
-        assert!(fact.factor(&kval, Some(&coupled)));
+        let mut fact = factor(&kkt, &kval, Some(&active), &order).unwrap().unwrap();
         // Switch constraints both ways.
         let changed = [1usize, 3, 5, 9, 20, 31];
         for &c in &changed {
@@ -884,10 +800,8 @@ mod tests {
         let rhs: Vec<f64> = (0..dim).map(|i| (i as f64 * 0.61).sin()).collect();
         let mut xb = rhs.clone();
         border.solve(&kkt, &mut fact, &mut xb);
-        let mut direct = Ldl::new(&pat, &order, &signs);
-        coupled[nv..].copy_from_slice(&active);
         kkt.regularized(&mut kval);
-        assert!(direct.factor(&kval, Some(&coupled)));
+        let mut direct = factor(&kkt, &kval, Some(&active), &order).unwrap().unwrap();
         let mut xd = rhs.clone();
         direct.solve(&mut xd);
         let scale = xd.iter().fold(0.0f64, |a, v| a.max(v.abs()));

@@ -1,4 +1,4 @@
-//! Masses fitted behind linear dynamics (DESIGN.md, "Sim-to-real gap diagnosis":
+//! Masses fitted behind linear dynamics (`docs/method/diagnosis.md`:
 //! adding an effect means refitting the hysteresis with it).
 //!
 //! ```text
@@ -31,7 +31,7 @@
 use clarabel::algebra::CscMatrix;
 use clarabel::qdldl::{QDLDLFactorisation, QDLDLSettingsBuilder};
 
-use super::qp::key;
+use super::qp::{csc_upper, key};
 use super::rows::{combine, emit_row};
 use super::{fit, FitOptions, FitReport, Solver};
 use crate::blocks::lti::{Discretization, Filter, Lti};
@@ -314,25 +314,8 @@ struct Precond {
 }
 
 impl Precond {
-    fn new(dim: usize, mut trip: Vec<(u64, f64)>) -> Result<Self> {
-        trip.sort_unstable_by_key(|t| t.0);
-        let mut colptr = vec![0usize; dim + 1];
-        let mut rowval = Vec::with_capacity(trip.len());
-        let mut val: Vec<f64> = Vec::with_capacity(trip.len());
-        let mut last = u64::MAX;
-        for (k, v) in trip {
-            if k == last {
-                *val.last_mut().unwrap() += v;
-            } else {
-                last = k;
-                rowval.push((k & 0xffff_ffff) as usize);
-                val.push(v);
-                colptr[(k >> 32) as usize + 1] += 1;
-            }
-        }
-        for c in 0..dim {
-            colptr[c + 1] += colptr[c];
-        }
+    fn new(dim: usize, trip: Vec<(u64, f64)>) -> Result<Self> {
+        let CscMatrix { colptr, rowval, nzval: mut val, .. } = csc_upper(dim, trip)?;
         // The diagonal is the last entry of each column (upper triangle, sorted rows).
         let dmax = (0..dim).map(|c| val[colptr[c + 1] - 1]).fold(0.0f64, f64::max).max(1e-300);
         let dead: Vec<usize> = (0..dim).filter(|&c| val[colptr[c + 1] - 1] <= 1e-14 * dmax).collect();

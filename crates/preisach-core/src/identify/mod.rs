@@ -1,11 +1,10 @@
-//! Identification (seed §3.2–3.3, done exactly): non-negative least squares on the
+//! Identification (the paper §3.2–3.3, done exactly): non-negative least squares on the
 //! masses with a free offset in one QP, over merged rows, with the paper's pitfalls
 //! reported.
 
 pub mod active;
 pub mod filtered;
-mod ldl;
-pub mod pg;
+mod order;
 pub mod qp;
 pub mod rows;
 
@@ -15,7 +14,8 @@ use crate::model::PreisachModel;
 pub use qp::{dense_bytes, Problem, Solution};
 pub use rows::{build_rows, Rows};
 
-/// Largest n_h the structured solver accepts (its sparse factor grows like n_q^1.5).
+/// Largest n_h `fit` accepts: the sparse factors grow like n_q^1.5 (time and memory
+/// measured in `docs/method/identification.md`).
 pub const MAX_N_H_STRUCTURED: usize = 600;
 
 /// `auto` uses the active-set solver up to this many free cells (it needs a handful of
@@ -27,7 +27,8 @@ pub const ACTIVE_STEPS: u32 = 40;
 /// Which exact solver to use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Solver {
-    /// The structured solver, except for small problems where the dense one is cheap.
+    /// The active-set solver up to [`ACTIVE_AUTO_MAX`] free cells of stepwise rows, else
+    /// the structured one.
     Auto,
     /// Dense QP over the masses (AᵀWA formed), clarabel.
     Clarabel,
@@ -36,8 +37,6 @@ pub enum Solver {
     /// Primal–dual active set on the sparse Everett-coordinate KKT system (exact; the
     /// fastest for small and mid-size n_h).
     Active,
-    /// Projected Newton-CG with A and Aᵀ applied through the Everett table (large n_h).
-    Gradient,
 }
 
 impl Solver {
@@ -47,10 +46,13 @@ impl Solver {
             "clarabel" => Ok(Solver::Clarabel),
             "structured" => Ok(Solver::Structured),
             "active" => Ok(Solver::Active),
-            "gradient" => Ok(Solver::Gradient),
+            "gradient" => Err(PreisachError::invalid(
+                "solver",
+                format!("'gradient' has been removed; use 'auto' or 'structured' (exact, n_h <= {MAX_N_H_STRUCTURED})"),
+            )),
             _ => Err(PreisachError::invalid(
                 "solver",
-                format!("expected 'auto', 'active', 'clarabel', 'structured' or 'gradient', got {s:?}"),
+                format!("expected 'auto', 'active', 'clarabel' or 'structured', got {s:?}"),
             )),
         }
     }
@@ -215,34 +217,16 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
     };
     let grid = Grid::new(lo, hi, opts.n_h)?;
     let n_h = grid.n_h();
-    // Both solvers' memory grows faster than n_q (the sparse interior point's factor like
-    // n_q^1.5: n_h = 100 fits in under a second, n_h = 1000 took over 1.4 GB and many
-    // minutes): refuse before allocating rather than exhaust the machine.
-    if opts.solver == Solver::Gradient {
-        // The operator-based solver holds a few n_q-sized buffers: refuse only what
-        // cannot fit (checked before allocating).
-        let need = pg::gradient_bytes(n_h, u.len());
-        if need > pg::MEMORY_BUDGET {
-            return Err(PreisachError::invalid(
-                "n_h",
-                format!(
-                    "{n_h} is too large to identify in memory: the gradient solver needs about {:.1} GB (budget {:.0} GB)",
-                    need / 1e9,
-                    pg::MEMORY_BUDGET / 1e9
-                ),
-            ));
-        }
-    } else if n_h > MAX_N_H_STRUCTURED {
+    // The sparse factors grow faster than n_q (like n_q^1.5): refuse before allocating
+    // rather than exhaust the machine.
+    if n_h > MAX_N_H_STRUCTURED {
         return Err(PreisachError::invalid(
             "n_h",
-            format!("{n_h} is too large to identify in memory (the interior-point solvers handle n_h <= {MAX_N_H_STRUCTURED}; solver='gradient' goes further)"),
+            format!("{n_h} is too large to identify (the solvers handle n_h <= {MAX_N_H_STRUCTURED})"),
         ));
     }
     let (u_min, u_max) = min_max(u);
 
-    // The active-set solve splits its factorizations over two threads: wake the helper
-    // now, while the rows are built (see `crate::pair`).
-    let _session = crate::pair::session();
     let t_rows = std::time::Instant::now();
     let rows = build_rows(&grid, u, y, opts.interpolated);
     let time_rows_s = t_rows.elapsed().as_secs_f64();
@@ -291,7 +275,6 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
         Solver::Auto => Solver::Structured,
         s => s,
     };
-    let mut unconverged: Option<u32> = None;
     let t_solve = std::time::Instant::now();
     let mut solver = solver;
     let sol = match solver {
@@ -316,13 +299,6 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
             }
             qp::solve_dense(&pb)?
         }
-        Solver::Gradient => {
-            let (sol, ok) = pg::solve_gradient_with(&pb, &pg::Settings::for_problem(&pb))?;
-            if !ok {
-                unconverged = Some(sol.iterations);
-            }
-            sol
-        }
         _ => qp::solve_everett(&pb)?,
     };
     let time_solve_s = t_solve.elapsed().as_secs_f64();
@@ -337,25 +313,20 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
     };
 
     let mut warnings = Vec::new();
-    if let Some(it) = unconverged {
-        warnings.push(format!(
-            "the gradient solver stopped on its iteration cap ({it} Hessian products) before the optimality tolerance: the fit is approximate"
-        ));
-    }
     if reversals < n_h {
         warnings.push(format!(
-            "only {reversals} input reversals for n_h = {n_h}: fewer than n_h, so not every relay is switched on and off (seed §3.2); use more reversals or a smaller n_h"
+            "only {reversals} input reversals for n_h = {n_h}: fewer than n_h, so not every relay is switched on and off (Stakvik et al. 2015, §3.2); use more reversals or a smaller n_h"
         ));
     }
     if u_max < hi || u_min > lo {
         warnings.push(format!(
-            "the input range [{u_min:.4}, {u_max:.4}] does not exceed the model range [{lo:.4}, {hi:.4}]: border cells are not excited and absorb the offset (seed §3.3, Fig. 7a)"
+            "the input range [{u_min:.4}, {u_max:.4}] does not exceed the model range [{lo:.4}, {hi:.4}]: border cells are not excited and absorb the offset (Stakvik et al. 2015, §3.3, Fig. 7a)"
         ));
     }
     let span = hi - lo;
     if u_max - hi > 0.1 * span || lo - u_min > 0.1 * span {
         warnings.push(format!(
-            "the input range [{u_min:.4}, {u_max:.4}] extends far beyond the model range [{lo:.4}, {hi:.4}]: the end cells absorb everything outside it (seed §3.3, Fig. 7c)"
+            "the input range [{u_min:.4}, {u_max:.4}] extends far beyond the model range [{lo:.4}, {hi:.4}]: the end cells absorb everything outside it (Stakvik et al. 2015, §3.3, Fig. 7c)"
         ));
     }
     let report = FitReport {
@@ -371,7 +342,6 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
         hi,
         solver: match solver {
             Solver::Clarabel => "clarabel",
-            Solver::Gradient => "gradient",
             Solver::Active => "active",
             _ => "structured",
         },

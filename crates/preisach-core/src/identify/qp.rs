@@ -3,7 +3,7 @@
 //!   minimise  (1/N) Σ_r W_r (a_r·x − ȳ_r)²  +  reg · Σ_{neighbouring cells} (w_a − w_b)²
 //!   over masses w >= 0 and a free offset,
 //!
-//! one problem (seed §3.3 alternates lsqnonneg and lsqnonlin; one QP is exact), both
+//! one problem (the paper §3.3 alternates lsqnonneg and lsqnonlin; one QP is exact), both
 //! solved by clarabel's interior point method:
 //! - [`solve_everett`] ("structured"): variables are the Everett values, so the
 //!   objective is sparse (O(depth²) per row) and the masses are second differences
@@ -18,7 +18,9 @@ use clarabel::algebra::CscMatrix;
 use clarabel::solver::{
     DefaultSettingsBuilder, DefaultSolver, IPSolver, NonnegativeConeT, SolverStatus, SupportedConeT, ZeroConeT,
 };
+use faer::sparse::{SparseColMat, Triplet};
 
+use super::active::{solve_kkt, Kkt};
 use super::rows::{mass_from_everett, Rows};
 use crate::error::{PreisachError, Result};
 use crate::grid::cell_index;
@@ -60,48 +62,46 @@ fn neighbour_pairs(n_h: usize) -> Vec<(usize, usize)> {
     p
 }
 
-/// Upper-triangular CSC from keyed values (`key(row, col)`); duplicates summed.
-fn csc_upper(n: usize, mut trip: Vec<(u64, f64)>) -> CscMatrix<f64> {
-    trip.sort_unstable_by_key(|t| t.0);
-    let mut merged: Vec<(usize, usize, f64)> = Vec::with_capacity(trip.len());
-    let mut last = u64::MAX;
-    for (k, v) in trip {
-        if k == last {
-            merged.last_mut().unwrap().2 += v;
-        } else {
-            last = k;
-            merged.push(((k & 0xffff_ffff) as usize, (k >> 32) as usize, v));
-        }
-    }
-    csc_sorted(n, n, merged)
+/// CSC (m × n) from (row, col, value) triplets in any order, duplicates summed (faer's
+/// triplet constructor). Every sparse matrix of the identification is built here.
+pub(super) fn csc(m: usize, n: usize, trip: &[Triplet<u32, u32, f64>]) -> Result<CscMatrix<f64>> {
+    let a = SparseColMat::<u32, f64>::try_new_from_triplets(m, n, trip)
+        .map_err(|e| PreisachError::Solver(format!("sparse matrix: {e:?}")))?;
+    let (sym, val) = a.into_parts();
+    let (_, _, colptr, _, rowval) = sym.into_parts();
+    let colptr = colptr.into_iter().map(|p| p as usize).collect();
+    let rowval = rowval.into_iter().map(|r| r as usize).collect();
+    Ok(CscMatrix::new(m, n, colptr, rowval, val))
 }
 
+/// The upper triangle (n × n, CSC) of a symmetric matrix from keyed triplets ([`key`]),
+/// duplicates summed, every diagonal entry present (zero where none is given): rows are
+/// sorted, so each column's diagonal is its last entry.
+pub(super) fn csc_upper(n: usize, mut trip: Vec<(u64, f64)>) -> Result<CscMatrix<f64>> {
+    // Sorted by key first (plain integers, in place): the constructor's passes then read
+    // the triplets in memory order, which halves its time on millions of them, and its
+    // per-column sorts find them in order and keep it, so duplicates are summed in this
+    // order. (The diagonal's zeros go last: each ends its column, still in order.)
+    trip.sort_unstable_by_key(|t| t.0);
+    trip.extend((0..n).map(|i| (key(i, i), 0.0)));
+    // (The same size and alignment: collected in place, no second copy of the triplets.)
+    let trip: Vec<Triplet<u32, u32, f64>> =
+        trip.into_iter().map(|(k, v)| Triplet::new((k & 0xffff_ffff) as u32, (k >> 32) as u32, v)).collect();
+    csc(n, n, &trip)
+}
+
+/// Key of the upper-triangle entry (row, col) or (col, row): the column in the high
+/// half, the row in the low one.
 #[inline]
 pub(super) fn key(row: usize, col: usize) -> u64 {
     let (r, c) = if row <= col { (row, col) } else { (col, row) };
     ((c as u64) << 32) | r as u64
 }
 
-/// General CSC (m × n) from (row, col, value) triplets.
-fn csc_general(m: usize, n: usize, mut trip: Vec<(usize, usize, f64)>) -> CscMatrix<f64> {
-    trip.sort_unstable_by_key(|t| (t.1, t.0));
-    csc_sorted(m, n, trip)
-}
-
-/// CSC from triplets already sorted by (col, row).
-fn csc_sorted(m: usize, n: usize, trip: Vec<(usize, usize, f64)>) -> CscMatrix<f64> {
-    let mut colptr = vec![0usize; n + 1];
-    let mut rowval = Vec::with_capacity(trip.len());
-    let mut nzval = Vec::with_capacity(trip.len());
-    for (r, c, v) in trip {
-        colptr[c + 1] += 1;
-        rowval.push(r);
-        nzval.push(v);
-    }
-    for c in 0..n {
-        colptr[c + 1] += colptr[c];
-    }
-    CscMatrix::new(m, n, colptr, rowval, nzval)
+/// `csc` of (row, col, value) triplets.
+fn csc_general(m: usize, n: usize, trip: &[(usize, usize, f64)]) -> Result<CscMatrix<f64>> {
+    let t: Vec<Triplet<u32, u32, f64>> = trip.iter().map(|&(r, c, v)| Triplet::new(r as u32, c as u32, v)).collect();
+    csc(m, n, &t)
 }
 
 /// Solve `min ½xᵀPx + qᵀx` s.t. the first `n_zero` rows of `A x = 0` and the remaining
@@ -130,7 +130,7 @@ fn ipm(
     n_zero: usize,
     n_rows: usize,
 ) -> Result<Iterate> {
-    let a = csc_general(n_rows, n, a_trip.to_vec());
+    let a = csc_general(n_rows, n, a_trip)?;
     let mut cones = Vec::new();
     if n_zero > 0 {
         cones.push(ZeroConeT(n_zero));
@@ -182,7 +182,7 @@ fn polish(
         }
         let trip: Vec<(usize, usize, f64)> =
             a_trip.iter().filter(|t| map[t.0] != usize::MAX).map(|&(r, c, v)| (map[r], c, v)).collect();
-        let a2 = csc_general(k, n, trip);
+        let Ok(a2) = csc_general(k, n, &trip) else { break };
         let cones2 = if k > 0 { vec![ZeroConeT(k)] } else { vec![] };
         let Ok((x2, _, _, it2)) = clarabel_once(p, q, &a2, &cones2) else { break };
         total += it2;
@@ -235,14 +235,6 @@ fn clarabel_once(p: &CscMatrix<f64>, q: &[f64], a: &CscMatrix<f64>, cones: &[Sup
 /// offset): upper-triangular Hessian triplets keyed by [`key`] (duplicates to be summed)
 /// and the linear term, for `½ xᵀPx + qᵀx`.
 pub(super) fn everett_objective(pb: &Problem) -> (Vec<(u64, f64)>, Vec<f64>) {
-    let mut trip = Vec::new();
-    let q = everett_objective_into(pb, &mut trip);
-    (trip, q)
-}
-
-/// [`everett_objective`] with the triplets written to `trip` (cleared first; its memory
-/// reused).
-pub(super) fn everett_objective_into(pb: &Problem, trip: &mut Vec<(u64, f64)>) -> Vec<f64> {
     let rows = pb.rows;
     let n_h = rows.n_h;
     let n_q = rows.n_vars();
@@ -250,8 +242,7 @@ pub(super) fn everett_objective_into(pb: &Problem, trip: &mut Vec<(u64, f64)>) -
     let n_total = rows.n_samples as f64;
     // One triplet per pair of entries in a row (the offset included).
     let pairs: usize = rows.indptr.windows(2).map(|w| (w[1] - w[0] + 1) * (w[1] - w[0] + 2) / 2).sum();
-    trip.clear();
-    trip.reserve(pairs);
+    let mut trip = Vec::with_capacity(pairs);
     let mut q = vec![0.0; n];
     let mut ent: Vec<(usize, f64)> = Vec::new();
     for r in 0..rows.n_rows() {
@@ -288,7 +279,7 @@ pub(super) fn everett_objective_into(pb: &Problem, trip: &mut Vec<(u64, f64)>) -
             }
         }
     }
-    q
+    (trip, q)
 }
 
 /// The structured solver: Everett coordinates, sparse objective, masses >= 0 as
@@ -300,7 +291,14 @@ pub fn solve_everett(pb: &Problem) -> Result<Solution> {
     let (trip, q) = everett_objective(pb);
     let mut d1 = Vec::new();
     let cell_ij = cell_coords(n_h);
-    let p = csc_upper(n, trip);
+    // Stepwise rows are polished by the active-set method (below), and one assembly then
+    // serves both methods: the Hessian is the KKT matrix's first n columns.
+    let (p, kkt) = if pb.rows.interpolated {
+        (csc_upper(n, trip)?, None)
+    } else {
+        let kkt = Kkt::build(pb, trip)?;
+        (kkt.hessian(), Some(kkt))
+    };
     // Constraints: fixed cells first (zero cone), then the rest (non-negative cone);
     // A x + s = 0 with A = −D, so s = D x = the masses.
     let mut order: Vec<usize> = (0..n_q).filter(|&c| pb.zero[c]).collect();
@@ -323,8 +321,8 @@ pub fn solve_everett(pb: &Problem) -> Result<Solution> {
         guess[c] |= first.1[r] < first.2[r];
     }
     // (Not for interpolated rows: there it cycles; the clarabel polish is cheaper.)
-    if !pb.rows.interpolated {
-        if let Some(mut sol) = super::active::solve_active(pb, Some(guess), POLISH_STEPS)? {
+    if let Some(kkt) = kkt {
+        if let Some(mut sol) = solve_kkt(pb, kkt, &q, Some(guess), POLISH_STEPS)? {
             sol.iterations += first.3;
             return Ok(sol);
         }
@@ -430,4 +428,48 @@ pub fn solve_dense(pb: &Problem) -> Result<Solution> {
         masses[c] = (x[k] * pb.scale).max(0.0);
     }
     Ok(Solution { masses, offset: x[nf] * pb.scale + pb.mu, iterations })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Random triplets with many duplicates, against a dense accumulation.
+    #[test]
+    fn triplets_become_csc_with_duplicates_summed() {
+        let mut s = 17u64;
+        let mut rnd = move |k: u64| {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 33) % k
+        };
+        for (m, n) in [(1, 1), (7, 3), (40, 55)] {
+            let trip: Vec<(usize, usize, f64)> = (0..4 * m * n)
+                .map(|_| (rnd(m as u64) as usize, rnd(n as u64) as usize, rnd(1000) as f64 - 500.0))
+                .collect();
+            let mut dense = vec![0.0; m * n];
+            let mut present = vec![false; m * n];
+            for &(r, c, v) in &trip {
+                dense[c * m + r] += v;
+                present[c * m + r] = true;
+            }
+            let a = csc_general(m, n, &trip).unwrap();
+            let mut seen = vec![false; m * n];
+            for c in 0..n {
+                let rows = &a.rowval[a.colptr[c]..a.colptr[c + 1]];
+                assert!(rows.windows(2).all(|w| w[0] < w[1]), "rows sorted and distinct");
+                for (&r, &v) in rows.iter().zip(&a.nzval[a.colptr[c]..a.colptr[c + 1]]) {
+                    assert_eq!(v, dense[c * m + r]);
+                    seen[c * m + r] = true;
+                }
+            }
+            assert_eq!(seen, present);
+        }
+        // The symmetric form: keys in either orientation land in the upper triangle,
+        // every diagonal present and last in its column.
+        let trip = vec![(key(2, 0), 1.0), (key(0, 2), 2.0), (key(1, 1), 3.0), (key(1, 1), 4.0)];
+        let a = csc_upper(4, trip).unwrap();
+        assert_eq!(a.colptr, [0, 1, 2, 4, 5]);
+        assert_eq!(a.rowval, [0, 1, 0, 2, 3]);
+        assert_eq!(a.nzval, [0.0, 7.0, 3.0, 0.0, 0.0]);
+    }
 }

@@ -1,4 +1,4 @@
-//! Regression rows in Everett coordinates (MATH.md, "Identification without the dense
+//! Regression rows in Everett coordinates (`docs/method/fast-paths.md`, "Identification without the dense
 //! matrix").
 //!
 //! The output is `y = 2 S⁺ − E(n_h, 0) + offset`, and S⁺ is a signed sum of Everett
