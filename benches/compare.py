@@ -8,6 +8,7 @@ claims are ratios measured back to back in the same process.
 from __future__ import annotations
 
 import json
+import os
 import statistics
 import subprocess
 import sys
