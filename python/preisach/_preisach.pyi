@@ -7,7 +7,7 @@ from typing_extensions import final
 
 __version__: str
 __all__ = [
-    "__version__", "Model", "Stream", "fit", "fit_behind", "Behind", "regression_rows", "invert",
+    "__version__", "Model", "Stream", "fit", "fit_behind", "Behind", "regression_rows", "invert", "saturation",
     "InverseStream", "Chain", "run_loop", "sample_period",
 ]
 
@@ -45,6 +45,7 @@ def fit(
     reg: float = 0.0,
     solver: str = "auto",
     interpolated: bool = False,
+    diagonal_floor: float = 0.01,
 ) -> tuple[Model, dict[str, Any]]: ...
 def fit_behind(
     u: NDArray[np.float64],
@@ -89,6 +90,8 @@ def regression_rows(
 def invert(
     model: Model, r: NDArray[np.float64], method: str = "closest", lookahead: int | None = None
 ) -> tuple[NDArray[np.float64], int]: ...
+
+def saturation(model: Model, r: NDArray[np.float64]) -> tuple[int, int | None, tuple[float, float]]: ...
 
 @final
 class InverseStream:
