@@ -18,8 +18,8 @@ if TYPE_CHECKING:
     from preisach._inverse import Inverter
 
 _OUTPUTS = ("stepwise", "interpolated")
-#: Default ``diagonal_floor`` of :meth:`PreisachModel.fit`.
-DIAGONAL_FLOOR = 0.01
+#: Default ``diagonal_floor`` of :meth:`PreisachModel.fit` (0.01).
+DIAGONAL_FLOOR: float = _preisach.DEFAULT_DIAGONAL_FLOOR
 _M = TypeVar("_M", bound="PreisachModel")
 
 

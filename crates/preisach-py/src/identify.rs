@@ -20,7 +20,7 @@ use crate::{guard, slice, to_py, Model};
 
 /// Fit a model; returns (Model, report dict).
 #[pyfunction]
-#[pyo3(signature = (u, y, n_h, u_range=None, reg=0.0, solver="auto", interpolated=false, diagonal_floor=DEFAULT_DIAGONAL_FLOOR))]
+#[pyo3(signature = (u, y, n_h, u_range=None, reg=0.0, solver="auto", interpolated=false, diagonal_floor=None))]
 #[allow(clippy::too_many_arguments)]
 fn fit<'py>(
     py: Python<'py>,
@@ -31,13 +31,14 @@ fn fit<'py>(
     reg: f64,
     solver: &str,
     interpolated: bool,
-    diagonal_floor: f64,
+    diagonal_floor: Option<f64>,
 ) -> PyResult<(Model, Bound<'py, PyDict>)> {
     guard(|| {
         if n_h < 1 {
             return Err(to_py(preisach_core::PreisachError::invalid("n_h", format!("must be >= 1, got {n_h}"))));
         }
         let solver = Solver::parse(solver).map_err(to_py)?;
+        let diagonal_floor = diagonal_floor.unwrap_or(DEFAULT_DIAGONAL_FLOOR);
         let opts = FitOptions { n_h: n_h as usize, u_range, reg, solver, interpolated, diagonal_floor };
         let (u, y) = (slice("u", &u)?, slice("y", &y)?);
         let (model, rep) = py.detach(|| core_fit(u, y, &opts)).map_err(to_py)?;
@@ -249,6 +250,7 @@ impl Behind {
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("DEFAULT_DIAGONAL_FLOOR", DEFAULT_DIAGONAL_FLOOR)?;
     m.add_class::<Behind>()?;
     m.add_function(wrap_pyfunction!(fit, m)?)?;
     m.add_function(wrap_pyfunction!(fit_behind, m)?)?;
