@@ -8,7 +8,7 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use preisach_core::identify::{fit, FitOptions, Solver};
+use preisach_core::identify::{fit, FitOptions, Solver, DEFAULT_DIAGONAL_FLOOR};
 
 #[path = "common.rs"]
 mod common;
@@ -52,7 +52,14 @@ fn identify(c: &mut Criterion) {
     g.measurement_time(Duration::from_secs(4)).warm_up_time(Duration::from_millis(500)).sample_size(30);
     for n_h in [20usize, 40, 60] {
         let (u, y, range) = workload(n_h);
-        let opts = FitOptions { n_h, u_range: Some(range), reg: 0.0, solver: Solver::Auto, interpolated: false };
+        let opts = FitOptions {
+            n_h,
+            u_range: Some(range),
+            reg: 0.0,
+            solver: Solver::Auto,
+            interpolated: false,
+            diagonal_floor: DEFAULT_DIAGONAL_FLOOR,
+        };
         g.bench_with_input(BenchmarkId::new("fit", n_h), &n_h, |b, _| {
             b.iter(|| black_box(fit(black_box(&u), black_box(&y), &opts).unwrap().1.rmse))
         });

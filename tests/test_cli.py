@@ -343,3 +343,21 @@ def test_missing_matplotlib_is_reported_before_any_work(tmp_path, argv):
     assert r.stderr.strip().splitlines() == [f"preisach: error: {argv[-2]}: plots need matplotlib: "
                                              "pip install 'preisach[plot]'"]
     assert not list(tmp_path.iterdir())
+
+
+def test_invert_reports_clipped_references_in_one_line_on_stderr(tmp_path, record, capsys):
+    p, truth = record
+    model_path = tmp_path / "m.json"
+    truth.save(model_path)
+    # Oracle: the reachable output is the model's output at the ends of u_range.
+    y_lo, y_hi = truth.predict([0.0])[0], truth.predict([10.0])[0]
+    r = np.linspace(y_lo, y_hi, 200)
+    r[[50, 51, 120]] = [y_hi + 1.0, y_lo - 1.0, y_hi + 0.5]
+    ref = tmp_path / "r.csv"
+    _write(ref, t=np.arange(r.size) / 1e4, r=r)
+    assert main(["invert", str(model_path), str(ref), "-o", str(tmp_path / "u.csv")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("warning: 3 of 200 reference samples")
+    assert "first at index 50," in err[0]
+    u = np.loadtxt(tmp_path / "u.csv", delimiter=",", skiprows=1)[:, 1]
+    np.testing.assert_allclose(u[[50, 51, 120]], [10.0, 0.0, 10.0], atol=1e-12)

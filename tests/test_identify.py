@@ -39,7 +39,7 @@ def test_identification_recovers_known_masses_and_offset_noise_free(rng):
         truth = PreisachModel(w, (-1.0, 1.0), offset=-0.4)
         u = forc_input(-1.0, 1.0, n)
         for solver in ["active", "clarabel", "structured"]:
-            m = PreisachModel.fit(u, truth.predict(u), n, u_range=(-1.0, 1.0), solver=solver)
+            m = PreisachModel.fit(u, truth.predict(u), n, u_range=(-1.0, 1.0), solver=solver, diagonal_floor=0)
             scale = w.max()
             assert np.max(np.abs(m.weights - w)) <= 1e-6 * scale
             assert abs(m.offset + 0.4) <= 1e-6 * scale
@@ -68,7 +68,7 @@ def test_solvers_agree_and_match_or_beat_scipy_nnls_on_the_same_rows(rng):
     fs = {}
     for solver in ["active", "clarabel", "structured"]:
         with pytest.warns(PreisachWarning, match="far beyond"):  # the input spans -0.2 .. 1.2 on purpose
-            m = PreisachModel.fit(u, y, n, u_range=(0.0, 1.0), solver=solver)
+            m = PreisachModel.fit(u, y, n, u_range=(0.0, 1.0), solver=solver, diagonal_floor=0)
         xm = np.concatenate([m.weights[iu], [m.offset]])
         fs[solver] = _objective(A, counts, target, within, xm)
         assert fs[solver] <= f_scipy * (1 + 1e-9)
@@ -95,7 +95,7 @@ def test_active_solver_reaches_scipy_nnls_optimum_on_random_problems(n, seed, sw
     y = y + rng.normal(0, noise, u.size)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        m = PreisachModel.fit(u, y, n, u_range=(0.0, 1.0), solver="active")
+        m = PreisachModel.fit(u, y, n, u_range=(0.0, 1.0), solver="active", diagonal_floor=0)
     (A, counts, target, within), f_scipy = _scipy_objective(u, y, n, (0.0, 1.0))
     iu = np.triu_indices(n)
     f = _objective(A, counts, target, within, np.concatenate([m.weights[iu], [m.offset]]))
@@ -212,3 +212,74 @@ def test_interpolated_fit_recovers_an_interpolated_model():
     m = PreisachModel.fit(u, truth.predict(u), n, u_range=(0.0, 10.0), output="interpolated")
     assert m.output == "interpolated"
     assert np.max(np.abs(m.weights - truth.weights)) < 1e-6 * truth.weights.max()
+
+
+# --- the diagonal floor -------------------------------------------------------------
+
+@settings(max_examples=15, deadline=None)
+@given(n=st.integers(2, 16), seed=st.integers(0, 2**31), noise=st.sampled_from([0.0, 0.01, 0.1]),
+       fraction=st.sampled_from([0.01, 0.1, 0.5]), interpolated=st.booleans())
+def test_diagonal_floor_fit_is_the_least_squares_optimum_with_the_diagonal_bounded_below(
+        n, seed, noise, fraction, interpolated):
+    """Oracle: SciPy's bounded least squares (``lsq_linear``) on the same merged rows, the
+    excited diagonal masses bounded below by ``fraction * ptp(y) / (2 n_h)``, the rest by
+    0, the offset free. The data come from models with zero diagonals (where the floor
+    binds) and random masses elsewhere."""
+    from scipy.optimize import lsq_linear
+
+    rng = np.random.default_rng(seed)
+    w = random_weights(rng, n, zeros=rng.uniform(0.0, 0.5))
+    w[np.diag_indices(n)] = 0.0
+    out = "interpolated" if interpolated else "stepwise"
+    u = sweep_input(0.0, 1.0, int(rng.integers(n + 2, 3 * n + 4)), 3000)
+    y = PreisachModel(w, (0, 1), offset=float(rng.normal()), output=out).predict(u) + rng.normal(0, noise, u.size)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = PreisachModel.fit(u, y, n, u_range=(0.0, 1.0), output=out, diagonal_floor=fraction)
+    floor = fraction * np.ptp(y) / (2 * n)  # the sweep reaches every level
+    iu = np.triu_indices(n)
+    lb = np.where(iu[0] == iu[1], floor, 0.0)
+    assert np.all(m.weights[iu] >= lb * (1 - 1e-12))
+    if interpolated:
+        # One row per sample (the oracle builds them from the interpolated model itself).
+        basis = np.eye(len(iu[0]))
+        A = np.stack([PreisachModel(_dense(n, e, iu), (0, 1), output=out).predict(u) for e in basis], axis=1)
+        A = np.hstack([A, np.ones((u.size, 1))])
+        counts, target, within, n_samples = np.ones(u.size), y, 0.0, u.size
+    else:
+        A, counts, target, within = _preisach.regression_rows(u, y, n, (0.0, 1.0))
+        n_samples = None
+    sw = np.sqrt(counts)[:, None]
+    bounds = (np.append(lb, -np.inf), np.full(lb.size + 1, np.inf))
+    x = lsq_linear(A * sw, target * sw[:, 0], bounds=bounds, tol=1e-14, max_iter=10_000).x
+    f_scipy = _objective(A, counts, target, within, x, n_samples)
+    f = _objective(A, counts, target, within, np.concatenate([m.weights[iu], [m.offset]]), n_samples)
+    assert f <= f_scipy * (1 + 1e-7) + 1e-10 * np.var(y)
+    assert m.report.rmse == pytest.approx(np.sqrt(f), rel=1e-7, abs=1e-12)
+
+
+def _dense(n, packed, iu):
+    w = np.zeros((n, n))
+    w[iu] = packed
+    return w
+
+
+def test_diagonal_floor_leaves_a_model_above_it_unchanged(rng):
+    # A smooth model whose diagonal masses lie above the default floor: the bound does not
+    # bind, so the fit recovers the masses exactly (noise-free), as without the floor.
+    n = 20
+    truth = PreisachModel(smooth_weights(n), (0.0, 10.0), offset=1.0)
+    u = sweep_input(0.0, 10.0, 2 * n + 2, 40000)
+    y = truth.predict(u)
+    floor = 0.01 * np.ptp(y) / (2 * n)
+    assert np.diag(truth.weights).min() > 2 * floor
+    for f in (0.0, 0.01):
+        m = PreisachModel.fit(u, y, n, u_range=(0.0, 10.0), diagonal_floor=f)
+        assert np.max(np.abs(m.weights - truth.weights)) < 1e-6 * truth.weights.max()
+
+
+@pytest.mark.parametrize("bad", [-0.1, 1.0, float("nan"), "0.1", True])
+def test_bad_diagonal_floor_raises_valueerror_naming_it(bad):
+    u = sweep_input(0.0, 1.0, 12, 500)
+    with pytest.raises(ValueError, match="diagonal_floor"):
+        PreisachModel.fit(u, u, 4, diagonal_floor=bad)

@@ -39,9 +39,12 @@ Three methods, all starting from negative saturation (every relay -1, input ``lo
     diagonal), so every reachable reference is reproduced to rounding.
 
 References outside the reachable output range ``[offset - total, offset + total]``
-saturate at the end levels (``lo``/``hi``, or the nearest level giving the extreme
-output if the model is flat there). This is not an error: the count is reported by
-``invert(..., return_info=True)`` and by ``Inverter.saturated``.
+(the model's output at the ends of ``u_range``, from any memory) saturate: the input
+stays at the end of ``u_range`` (``lo``/``hi``, or the nearest level giving the extreme
+output if the model is flat there), so the input never leaves ``u_range``. This is not
+an error: :func:`invert` emits one :class:`~preisach.PreisachWarning` with the count and
+the first index (also in ``invert(..., return_info=True)``), and ``Inverter.saturated``
+counts such references as they stream.
 
 ``lookahead`` is only used by ``"interpolated"``; it must be ``None`` for
 ``"closest"`` and ``"continuous"`` (neither needs a preview).
@@ -49,6 +52,7 @@ output if the model is flat there). This is not an error: the count is reported 
 from __future__ import annotations
 
 import numbers
+import warnings
 from dataclasses import dataclass
 from typing import Any, Literal, Optional, Union, overload
 
@@ -70,11 +74,13 @@ class InversionInfo:
         method: the inversion method used.
         lookahead: the interpolation look-ahead in samples (``None`` = whole record).
         saturated: number of reference samples outside the reachable output range.
+        first_saturated: index of the first of them (``None`` if there is none).
     """
 
     method: str
     lookahead: Optional[int]
     saturated: int
+    first_saturated: Optional[int] = None
 
 
 def _core_of(model: Any) -> _preisach.Model:
@@ -156,9 +162,30 @@ def invert(
     lookahead = _check_lookahead(method, lookahead, streaming=False)
     r = _as_signal("r", r)
     u, saturated = _preisach.invert(core, r, method, lookahead)
+    first = None
+    if saturated:
+        first = _warn_saturated(core, r)
     if return_info:
-        return u, InversionInfo(method=method, lookahead=lookahead, saturated=int(saturated))
+        return u, InversionInfo(method=method, lookahead=lookahead, saturated=int(saturated), first_saturated=first)
     return u
+
+
+def _warn_saturated(core: _preisach.Model, r: NDArray[np.float64]) -> int:
+    """Emit the :class:`~preisach.PreisachWarning` for references beyond the reachable
+    output; return the first one's index."""
+    from preisach.model import PreisachWarning
+
+    count, first, (lo, hi) = _preisach.saturation(core, r)
+    assert first is not None  # only called when the core counted saturated samples
+    u_lo, u_hi = core.lo, core.hi
+    warnings.warn(
+        f"{count} of {r.size} reference samples are outside the model's reachable output range "
+        f"[{lo:.6g}, {hi:.6g}] (first at index {first}, r = {r[first]:.6g}): they were clipped, the input "
+        f"stays at the end of u_range [{u_lo:.6g}, {u_hi:.6g}]",
+        PreisachWarning,
+        stacklevel=3,
+    )
+    return int(first)
 
 
 class Inverter:

@@ -6,9 +6,10 @@ from numpy.typing import NDArray
 from typing_extensions import final
 
 __version__: str
+DEFAULT_DIAGONAL_FLOOR: float
 __all__ = [
-    "__version__", "Model", "Stream", "fit", "fit_behind", "Behind", "regression_rows", "invert",
-    "InverseStream", "Chain", "run_loop", "sample_period",
+    "__version__", "DEFAULT_DIAGONAL_FLOOR", "Model", "Stream", "fit", "fit_behind", "Behind", "regression_rows",
+    "invert", "saturation", "InverseStream", "Chain", "run_loop", "sample_period",
 ]
 
 # --- core (model, stream, identification) ---
@@ -45,6 +46,7 @@ def fit(
     reg: float = 0.0,
     solver: str = "auto",
     interpolated: bool = False,
+    diagonal_floor: float | None = None,
 ) -> tuple[Model, dict[str, Any]]: ...
 def fit_behind(
     u: NDArray[np.float64],
@@ -89,6 +91,8 @@ def regression_rows(
 def invert(
     model: Model, r: NDArray[np.float64], method: str = "closest", lookahead: int | None = None
 ) -> tuple[NDArray[np.float64], int]: ...
+
+def saturation(model: Model, r: NDArray[np.float64]) -> tuple[int, int | None, tuple[float, float]]: ...
 
 @final
 class InverseStream:

@@ -74,7 +74,7 @@ def _cmd_identify(a: argparse.Namespace) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", PreisachWarning)
         model = PreisachModel.fit(rec["u"], rec["y"], a.n_h, u_range=a.range, reg=a.reg, solver=a.solver,
-                                  output=a.output)
+                                  output=a.output, diagonal_floor=a.diagonal_floor)
     model.save(a.output_path)
     rep = model.report
     print(f"identified n_h={model.n_h} on u_range=({model.u_range[0]:.6g}, {model.u_range[1]:.6g}) from "
@@ -131,7 +131,7 @@ def _cmd_predict(a: argparse.Namespace) -> int:
 def _cmd_invert(a: argparse.Namespace) -> int:
     from preisach.chain import load
     from preisach.io import read_record, write_csv
-    from preisach.model import PreisachModel
+    from preisach.model import PreisachModel, PreisachWarning
 
     if a.lookahead is not None and a.method != "interpolated":
         raise UsageError(f"preisach invert: --lookahead is for --method interpolated, not {a.method} (see --help)")
@@ -140,9 +140,13 @@ def _cmd_invert(a: argparse.Namespace) -> int:
         raise ValueError(f"{a.model}: a chain ({' -> '.join(model.kinds())}), not a single identified model: "
                          f"invert inverts a model (identify one, or use the model the chain was built on)")
     rec = read_record(a.ref, ["t", "r"])
-    u = model.invert(rec["r"], method=a.method, lookahead=a.lookahead)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", PreisachWarning)
+        u = model.invert(rec["r"], method=a.method, lookahead=a.lookahead)
     write_csv(a.output_path, {"t": rec["t"], "u": u})
     print(f"wrote {a.output_path} ({len(u)} samples, method {a.method})")
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
     return 0
 
 
@@ -283,6 +287,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="preisach", description="Identify, invert, simulate and diagnose the Preisach "
                 "hysteresis model of a piezo stage. Records are CSV with header t,u,y (or .npz).")
     from preisach import __version__
+    from preisach.model import DIAGONAL_FLOOR
 
     p.add_argument("--version", action="version", version=f"preisach {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
@@ -303,6 +308,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="QP solver; all exact, auto picks the fastest for the size (see docs/method/identification.md)")
     s.add_argument("--output-kind", dest="output", choices=["stepwise", "interpolated"], default="stepwise",
                    help="fit the stepwise (paper) or the interpolated (continuous) model")
+    s.add_argument("--diagonal-floor", type=float, default=DIAGONAL_FLOOR, metavar="F",
+                   help="lower bound on the diagonal (reversible) masses, as a fraction of the major loop's "
+                        "average slope: keeps the continuous inverse from jumping at the reference's turns; "
+                        "0 = plain non-negative least squares")
     s.add_argument("-o", dest="output_path", required=True, metavar="MODEL.json", help="where to write the model")
     s.set_defaults(func=_cmd_identify)
 
@@ -322,11 +331,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", default=None, metavar="OUT.json", help="write the figures as JSON")
     s.set_defaults(func=_cmd_compare)
 
-    s = add("invert", "Input that makes the model follow a reference (t,r); writes t,u.")
+    s = add("invert", "Input that makes the model follow a reference (t,r); writes t,u. References beyond "
+                      "the model's reachable output are clipped and counted (one warning line).")
     s.add_argument("model", metavar="MODEL.json", help="a model file")
     s.add_argument("ref", metavar="REF.csv", help="reference with columns t,r")
     s.add_argument("--method", choices=["closest", "interpolated", "continuous"], default="continuous",
-                   help="continuous: smooth input, no look-ahead (for a real stage); closest: the paper's "
+                   help="continuous: smooth input, no look-ahead (for a real stage; smooth at the reference's "
+                        "turns too when the model was identified with identify's --diagonal-floor > 0); "
+                        "closest: the paper's "
                         "per-sample closest match (a staircase); interpolated: the paper's Fig. 9 smoothing")
     s.add_argument("--lookahead", type=_nonneg_int, default=None, metavar="N",
                    help="preview samples for --method interpolated (default: the whole record)")

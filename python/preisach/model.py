@@ -18,12 +18,15 @@ if TYPE_CHECKING:
     from preisach._inverse import Inverter
 
 _OUTPUTS = ("stepwise", "interpolated")
+#: Default ``diagonal_floor`` of :meth:`PreisachModel.fit` (0.01).
+DIAGONAL_FLOOR: float = _preisach.DEFAULT_DIAGONAL_FLOOR
 _M = TypeVar("_M", bound="PreisachModel")
 
 
 class PreisachWarning(UserWarning):
-    """A pitfall of the paper (§3.3) met by the identification data: too few reversals,
-    an input range short of or far beyond the model range."""
+    """A pitfall of the paper (§3.3) met by the identification data (too few reversals,
+    an input range short of or far beyond the model range), or references an inverse
+    clipped because they lie beyond the model's reachable output."""
 
 
 class FitReport:
@@ -128,7 +131,8 @@ class PreisachModel:
     # --- identification -------------------------------------------------------------
     @classmethod
     def fit(cls, u: ArrayLike, y: ArrayLike, n_h: int, u_range: Optional[Sequence[float]] = None,
-            reg: float = 0.0, solver: str = "auto", output: str = "stepwise") -> "FittedModel":
+            reg: float = 0.0, solver: str = "auto", output: str = "stepwise",
+            diagonal_floor: float = DIAGONAL_FLOOR) -> "FittedModel":
         """Identify a model from input ``u`` and measured output ``y`` (the paper §3.2–3.3).
 
         One exact QP: non-negative least squares on the masses with a free offset
@@ -161,6 +165,16 @@ class PreisachModel:
             ``report.solver`` says which ran.
         output : {"stepwise", "interpolated"}
             Which model to fit (see the class docstring).
+        diagonal_floor : float in [0, 1)
+            Lower bound on the diagonal (reversible) masses of the excited cells, as a
+            fraction of the major loop's average slope: each is at least
+            ``diagonal_floor * (max(y) - min(y)) / (2 * excited levels)``, so every
+            branch leaving a turn of the input starts with at least that fraction of the
+            average slope. Default 0.01. Without it, lag or creep in the record often
+            drives fitted diagonal masses to zero: the model is then flat for up to a
+            cell after each turn and its continuous inverse jumps across the flat
+            (``docs/method/inversion.md``). 0 gives the plain non-negative least-squares
+            fit (exact recovery of any model's masses from noise-free data).
 
         Returns
         -------
@@ -180,7 +194,11 @@ class PreisachModel:
             raise ValueError(f"reg: must be a finite number >= 0, got {reg!r}")
         if output not in _OUTPUTS:
             raise ValueError(f"output: expected 'stepwise' or 'interpolated', got {output!r}")
-        core, rep = _preisach.fit(uu, yy, nh, rng, float(reg), str(solver), output == "interpolated")
+        if (isinstance(diagonal_floor, bool) or not isinstance(diagonal_floor, (int, float, np.floating, np.integer))
+                or not 0 <= float(diagonal_floor) < 1):
+            raise ValueError(f"diagonal_floor: must be a number in [0, 1), got {diagonal_floor!r}")
+        core, rep = _preisach.fit(uu, yy, nh, rng, float(reg), str(solver), output == "interpolated",
+                                  float(diagonal_floor))
         model = FittedModel._wrap(core, output)
         model.report = FitReport(rep)
         for w in rep["warnings"]:

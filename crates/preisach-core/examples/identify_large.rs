@@ -6,7 +6,7 @@
 use std::time::Instant;
 
 use preisach_core::grid::Grid;
-use preisach_core::identify::{fit, FitOptions, Solver};
+use preisach_core::identify::{fit, FitOptions, Solver, DEFAULT_DIAGONAL_FLOOR};
 use preisach_core::model::PreisachModel;
 
 fn peak_rss_mb() -> f64 {
@@ -63,7 +63,14 @@ fn main() {
     }
     let base = peak_rss_mb();
     let t0 = Instant::now();
-    let opts = FitOptions { n_h, u_range: None, reg: 0.0, solver, interpolated: false };
+    let opts = FitOptions {
+        n_h,
+        u_range: None,
+        reg: 0.0,
+        solver,
+        interpolated: false,
+        diagonal_floor: DEFAULT_DIAGONAL_FLOOR,
+    };
     let (_m, rep) = fit(&u, &y, &opts).expect("fit");
     let dt = t0.elapsed().as_secs_f64();
     println!(

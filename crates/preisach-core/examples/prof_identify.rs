@@ -11,7 +11,7 @@
 //! version of the sweep at n_h = 20, 40, 60.)
 
 use preisach_core::grid::Grid;
-use preisach_core::identify::{fit, FitOptions, Solver};
+use preisach_core::identify::{fit, FitOptions, Solver, DEFAULT_DIAGONAL_FLOOR};
 use preisach_core::model::PreisachModel;
 use std::time::Instant;
 struct Lcg(u64);
@@ -87,7 +87,8 @@ fn main() {
     };
     let (mn, mx) = u.iter().fold((f64::MAX, f64::MIN), |(a, b), &x| (a.min(x), b.max(x)));
     let rg = (mn + 0.005 * (mx - mn), mx - 0.005 * (mx - mn));
-    let opts = FitOptions { n_h, u_range: Some(rg), reg: 0.0, solver, interpolated };
+    let opts =
+        FitOptions { n_h, u_range: Some(rg), reg: 0.0, solver, interpolated, diagonal_floor: DEFAULT_DIAGONAL_FLOOR };
     let mut ts = vec![];
     let mut ss = vec![];
     let mut rs = vec![];

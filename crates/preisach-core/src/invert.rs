@@ -106,6 +106,20 @@ fn outside(model: &PreisachModel, r: f64, tol: f64) -> bool {
     r < model.output_of(0.0) - tol || r > model.output_of(total) + tol
 }
 
+/// The reachable output range `[y(lo), y(hi)]`: the model's output at the ends of its
+/// input range, from any memory.
+pub fn reachable(model: &PreisachModel) -> (f64, f64) {
+    (model.output_of(0.0), model.output_of(model.everett().total()))
+}
+
+/// The references outside the reachable output range (the ones every method clips and
+/// counts as saturated): how many, and the index of the first.
+pub fn saturation(model: &PreisachModel, r: &[f64]) -> (u64, Option<usize>) {
+    let tol = tolerance(model);
+    let count = r.iter().filter(|&&x| outside(model, x, tol)).count() as u64;
+    (count, r.iter().position(|&x| outside(model, x, tol)))
+}
+
 // ---------------------------------------------------------------------------------
 // Monotone searches over the levels 0..=n (pred false … false true … true).
 

@@ -96,7 +96,14 @@ fn fit_behind_recovers_masses_through_a_lightly_damped_mode() {
     assert!((m.offset() - truth.offset()).abs() < 1e-6 * wmax);
 
     // Ignoring the mode (the plain fit of z) is far off: the test can fail.
-    let fo = FitOptions { n_h, u_range: Some((-1.0, 2.0)), reg: 0.0, solver: Solver::Auto, interpolated: true };
+    let fo = FitOptions {
+        n_h,
+        u_range: Some((-1.0, 2.0)),
+        reg: 0.0,
+        solver: Solver::Auto,
+        interpolated: true,
+        diagonal_floor: 0.0,
+    };
     let (plain, _) = fit(&u, &z, &fo).unwrap();
     let err = plain.masses().iter().zip(truth.masses()).fold(0.0f64, |a, (x, y)| a.max((x - y).abs()));
     assert!(err > 1e-3 * wmax, "plain fit error {err}");
@@ -114,7 +121,14 @@ fn fit_behind_without_blocks_is_the_plain_fit() {
     }
     let opts = BehindOptions { n_h: 6, u_range: (-1.0, 2.0), dt: 1e-3, tol: 1e-12, max_iter: 200 };
     let (m, rep) = fit_behind(&u, &y, None, &[], &opts).unwrap();
-    let fo = FitOptions { n_h: 6, u_range: Some((-1.0, 2.0)), reg: 0.0, solver: Solver::Auto, interpolated: true };
+    let fo = FitOptions {
+        n_h: 6,
+        u_range: Some((-1.0, 2.0)),
+        reg: 0.0,
+        solver: Solver::Auto,
+        interpolated: true,
+        diagonal_floor: 0.0,
+    };
     let (_, plain) = fit(&u, &y, &fo).unwrap();
     assert!((rep.rmse - plain.rmse).abs() <= 1e-9 * plain.rmse, "{} vs {}", rep.rmse, plain.rmse);
     assert!(m.masses().iter().all(|&w| w >= 0.0));

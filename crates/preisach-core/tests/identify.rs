@@ -30,7 +30,14 @@ fn run(model: &PreisachModel, u: &[f64]) -> Vec<f64> {
 
 fn opts(model: &PreisachModel, solver: Solver) -> FitOptions {
     let g = model.grid();
-    FitOptions { n_h: g.n_h(), u_range: Some((g.lo(), g.hi())), reg: 0.0, solver, interpolated: false }
+    FitOptions {
+        n_h: g.n_h(),
+        u_range: Some((g.lo(), g.hi())),
+        reg: 0.0,
+        solver,
+        interpolated: false,
+        diagonal_floor: 0.0,
+    }
 }
 
 fn max_rel_err(a: &PreisachModel, b: &PreisachModel) -> f64 {
@@ -238,7 +245,8 @@ fn pitfalls_are_reported() {
 
 #[test]
 fn bad_input_is_rejected_with_the_argument_named() {
-    let o = FitOptions { n_h: 5, u_range: None, reg: 0.0, solver: Solver::Auto, interpolated: false };
+    let o =
+        FitOptions { n_h: 5, u_range: None, reg: 0.0, solver: Solver::Auto, interpolated: false, diagonal_floor: 0.0 };
     let e = fit(&[0.0, f64::NAN], &[0.0, 1.0], &o).unwrap_err().to_string();
     assert!(e.starts_with("u:") && e.contains("NaN at index 1"), "{e}");
     let e = fit(&[0.0, 1.0], &[0.0], &o).unwrap_err().to_string();

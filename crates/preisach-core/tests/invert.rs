@@ -205,6 +205,33 @@ fn continuous_inverse_saturates_out_of_range_and_stays_put_on_plateaus() {
     assert_eq!(inv.saturated(), 2);
 }
 
+#[test]
+fn saturation_counts_what_every_method_clips_and_finds_the_first() {
+    let mut rng = Rng::new(71);
+    for n_h in [1, 4, 30] {
+        let model = Arc::new(sparse_model(&mut rng, n_h));
+        let r = random_reference(&mut rng, &model, 500);
+        // Oracle: the outputs at the ends of the input range, run through the model.
+        let y_lo = model.step(&mut model.memory(), model.grid().lo());
+        let y_hi = model.step(&mut model.memory(), model.grid().hi());
+        let (a, b) = invert::reachable(&model);
+        assert!((a - y_lo).abs() <= 1e-12 && (b - y_hi).abs() <= 1e-12, "{a} {b} vs {y_lo} {y_hi}");
+        let out = |x: &f64| *x < y_lo || *x > y_hi;
+        let (count, first) = invert::saturation(&model, &r);
+        assert_eq!(count, r.iter().filter(|x| out(x)).count() as u64);
+        assert_eq!(first, r.iter().position(out));
+        assert!(count > 0);
+        for method in [Method::Closest, Method::Interpolated, Method::Continuous] {
+            assert_eq!(invert::invert(&model, &r, method, None).unwrap().1, count, "{method:?}");
+            let lookahead = (method == Method::Interpolated).then_some(7);
+            let mut inv = Inverter::new(model.clone(), method, lookahead).unwrap();
+            let mut u = vec![0.0; r.len()];
+            inv.process(&r, &mut u).unwrap();
+            assert_eq!(inv.saturated(), count, "{method:?}");
+        }
+    }
+}
+
 /// The monotone closest match over a whole reference (what the interpolation is built on).
 fn monotone_cm(model: &PreisachModel, r: &[f64]) -> Vec<f64> {
     let mut cm = vec![0.0; r.len()];

@@ -9,7 +9,7 @@ use std::sync::Mutex;
 use numpy::{PyReadonlyArray2, PyUntypedArrayMethods};
 use preisach_core::blocks::{Discretization, Filter};
 use preisach_core::identify::filtered::{fit_behind as core_fit_behind, Behind as CoreBehind, BehindOptions, Terms};
-use preisach_core::identify::{build_rows, fit as core_fit, FitOptions, Solver};
+use preisach_core::identify::{build_rows, fit as core_fit, FitOptions, Solver, DEFAULT_DIAGONAL_FLOOR};
 use preisach_core::Grid;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -20,7 +20,7 @@ use crate::{guard, slice, to_py, Model};
 
 /// Fit a model; returns (Model, report dict).
 #[pyfunction]
-#[pyo3(signature = (u, y, n_h, u_range=None, reg=0.0, solver="auto", interpolated=false))]
+#[pyo3(signature = (u, y, n_h, u_range=None, reg=0.0, solver="auto", interpolated=false, diagonal_floor=None))]
 #[allow(clippy::too_many_arguments)]
 fn fit<'py>(
     py: Python<'py>,
@@ -31,13 +31,15 @@ fn fit<'py>(
     reg: f64,
     solver: &str,
     interpolated: bool,
+    diagonal_floor: Option<f64>,
 ) -> PyResult<(Model, Bound<'py, PyDict>)> {
     guard(|| {
         if n_h < 1 {
             return Err(to_py(preisach_core::PreisachError::invalid("n_h", format!("must be >= 1, got {n_h}"))));
         }
-        let opts =
-            FitOptions { n_h: n_h as usize, u_range, reg, solver: Solver::parse(solver).map_err(to_py)?, interpolated };
+        let solver = Solver::parse(solver).map_err(to_py)?;
+        let diagonal_floor = diagonal_floor.unwrap_or(DEFAULT_DIAGONAL_FLOOR);
+        let opts = FitOptions { n_h: n_h as usize, u_range, reg, solver, interpolated, diagonal_floor };
         let (u, y) = (slice("u", &u)?, slice("y", &y)?);
         let (model, rep) = py.detach(|| core_fit(u, y, &opts)).map_err(to_py)?;
         let d = PyDict::new(py);
@@ -248,6 +250,7 @@ impl Behind {
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("DEFAULT_DIAGONAL_FLOOR", DEFAULT_DIAGONAL_FLOOR)?;
     m.add_class::<Behind>()?;
     m.add_function(wrap_pyfunction!(fit, m)?)?;
     m.add_function(wrap_pyfunction!(fit_behind, m)?)?;

@@ -3,7 +3,9 @@
 //! the messages are the same from Rust and Python.
 
 use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1};
-use preisach_core::invert::{invert as core_invert, Inverter, InverterState, Method};
+use preisach_core::invert::{
+    invert as core_invert, reachable, saturation as core_saturation, Inverter, InverterState, Method,
+};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
@@ -26,6 +28,17 @@ fn invert<'py>(
         let m = &model.inner;
         let (u, sat) = py.detach(|| core_invert(m, r, method, lookahead)).map_err(to_py)?;
         Ok((u.into_pyarray(py), sat))
+    })
+}
+
+/// The references of `r` outside the model's reachable output range:
+/// `(count, first index or None, (y_lo, y_hi))`.
+#[pyfunction]
+fn saturation<'py>(model: &Model, r: PyReadonlyArray1<'py, f64>) -> PyResult<(u64, Option<usize>, (f64, f64))> {
+    guard(|| {
+        let r = slice("r", &r)?;
+        let (count, first) = core_saturation(&model.inner, r);
+        Ok((count, first, reachable(&model.inner)))
     })
 }
 
@@ -138,6 +151,7 @@ impl InverseStream {
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(invert, m)?)?;
+    m.add_function(wrap_pyfunction!(saturation, m)?)?;
     m.add_class::<InverseStream>()?;
     Ok(())
 }

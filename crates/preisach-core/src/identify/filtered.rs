@@ -668,6 +668,7 @@ impl Behind {
             reg: 0.0,
             solver: Solver::Auto,
             interpolated: true,
+            diagonal_floor: 0.0,
         };
         let (model, rep) = fit(&self.u, &h_star, &fo)?;
         // The model's output on the output samples, through the dynamics.

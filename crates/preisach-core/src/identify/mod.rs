@@ -69,7 +69,20 @@ pub struct FitOptions {
     /// Fit the interpolated model (masses spread over their cells) instead of the
     /// stepwise one.
     pub interpolated: bool,
+    /// Lower bound on the diagonal (reversible) masses of the excited cells, as a
+    /// fraction of the average slope of the major loop: every diagonal mass is at least
+    /// `diagonal_floor · span(y) / (2 · excited levels)`, so a branch leaving a turn of
+    /// the input starts with at least that fraction of the average slope. 0 = plain
+    /// non-negative least squares. [`DEFAULT_DIAGONAL_FLOOR`] is the default.
+    pub diagonal_floor: f64,
 }
+
+/// Default [`FitOptions::diagonal_floor`]: a branch leaving a turn starts with at least
+/// 1 % of the major loop's average slope. Without a floor, dynamics the static model
+/// cannot follow (lag, creep) often drive fitted diagonal masses to zero: the model is
+/// then flat for up to a cell after every turn and its continuous inverse jumps across
+/// that flat (`docs/method/inversion.md`).
+pub const DEFAULT_DIAGONAL_FLOOR: f64 = 0.01;
 
 /// What the fit did and what to worry about.
 #[derive(Debug, Clone, Default)]
@@ -200,6 +213,43 @@ fn stepwise_sse(rows: &Rows, model: &PreisachModel) -> f64 {
     sse
 }
 
+/// The diagonal floor's mass per excited diagonal cell: `fraction · span(y) / (2 · top)`
+/// (half the output span spread over the `top` excited levels is the major loop's
+/// average slope per level).
+fn diagonal_floor_mass(y: &[f64], top: usize, fraction: f64) -> Result<f64> {
+    check_scalar("diagonal_floor", fraction)?;
+    if !(0.0..1.0).contains(&fraction) {
+        return Err(PreisachError::invalid("diagonal_floor", format!("must be in [0, 1), got {fraction}")));
+    }
+    if fraction == 0.0 || top == 0 {
+        return Ok(0.0);
+    }
+    let (lo, hi) = min_max(y);
+    Ok(fraction * (hi - lo) / (2.0 * top as f64))
+}
+
+/// `y` minus the output of `floor` on each of the excited diagonal cells (i < `top`):
+/// with the masses `w = w' + floor` on those cells, a fit of `w' >= 0` to this is the
+/// fit of `w` with the diagonal bounded below by the floor, with the same residuals.
+fn above_floor(grid: &Grid, u: &[f64], y: &[f64], top: usize, floor: f64, interpolated: bool) -> Result<Vec<f64>> {
+    let n_h = grid.n_h();
+    let mut masses = vec![0.0; grid.n_q()];
+    for i in 0..top.min(n_h) {
+        masses[cell_index(n_h, i, i)] = floor;
+    }
+    let diag = PreisachModel::new(grid.clone(), masses, 0.0)?;
+    let mut out = vec![0.0; u.len()];
+    if interpolated {
+        diag.run_interpolated(&mut diag.interp_memory(), u, &mut out);
+    } else {
+        diag.run(&mut diag.memory(), u, &mut out);
+    }
+    for (o, &v) in out.iter_mut().zip(y) {
+        *o = v - *o;
+    }
+    Ok(out)
+}
+
 /// Identify a model from input `u` and measured output `y`.
 pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, FitReport)> {
     check_signal("u", u)?;
@@ -226,6 +276,16 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
         ));
     }
     let (u_min, u_max) = min_max(u);
+    // Cells (i, j) with j >= top were never switched on.
+    let top = if opts.interpolated { grid.position(u_max).ceil() as usize } else { grid.quantize(u_max) as usize };
+    let floor = diagonal_floor_mass(y, top, opts.diagonal_floor)?;
+    let shifted;
+    let y = if floor > 0.0 {
+        shifted = above_floor(&grid, u, y, top, floor, opts.interpolated)?;
+        &shifted[..]
+    } else {
+        y
+    };
 
     let t_rows = std::time::Instant::now();
     let rows = build_rows(&grid, u, y, opts.interpolated);
@@ -245,8 +305,6 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
     };
     let (reversals, never, once) = excitation(levels, n_h);
     // Cells never switched on: their column equals the offset's, so they are fixed to 0.
-    let top =
-        if opts.interpolated { grid.position(u_max).ceil() as usize } else { *levels.iter().max().unwrap() as usize };
     let mut zero = vec![false; grid.n_q()];
     for i in 0..n_h {
         for j in i.max(top)..n_h {
@@ -310,6 +368,16 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
         pred.iter().zip(y).map(|(p, t)| (p - t) * (p - t)).sum()
     } else {
         stepwise_sse(&rows, &model)
+    };
+    // The fit above is of the masses above the floor (same residuals): add it back.
+    let model = if floor > 0.0 {
+        let mut masses = model.masses().to_vec();
+        for i in 0..top.min(n_h) {
+            masses[cell_index(n_h, i, i)] += floor;
+        }
+        PreisachModel::new(grid.clone(), masses, model.offset())?
+    } else {
+        model
     };
 
     let mut warnings = Vec::new();
