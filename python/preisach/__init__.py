@@ -27,5 +27,6 @@ from preisach.diagnose import GapReport, diagnose
 from preisach.io import read_record
 from preisach.model import FitReport, FittedModel, PreisachModel, PreisachWarning, Stream
 
-__all__ = ["Chain", "ChainInversionInfo", "ChainInverter", "Comparison", "FitReport", "FittedModel", "GapReport", "PreisachModel", "PreisachWarning",
-           "Stream", "__version__", "compare", "diagnose", "fit_percent", "load", "plots", "read_record", "sim"]
+__all__ = ["Chain", "ChainInversionInfo", "ChainInverter", "Comparison", "FitReport", "FittedModel", "GapReport",
+           "PreisachModel", "PreisachWarning", "Stream", "__version__", "compare", "diagnose", "fit_percent", "load",
+           "plots", "read_record", "sim"]

@@ -139,7 +139,7 @@ def run(out: Any = "preisach-demo", quick: bool = False, plots: Optional[bool] =
     import preisach
     from preisach import plots as P
     from preisach.io import write_csv, write_text
-    from preisach.sim import Stage, run_loop
+    from preisach.sim import Stage
 
     t_start = time.perf_counter()
     outdir = Path(out)
@@ -202,33 +202,13 @@ def run(out: Any = "preisach-demo", quick: bool = False, plots: Optional[bool] =
     runs.append(("uncompensated (straight line)  5 Hz", None, 5.0, "identity"))
     loops: dict[str, dict[str, Any]] = {}
 
-    def reference(fr: float) -> tuple[NDArray[np.float64], int]:
-        periods = (2 if fr < 10 else 5) if quick else (3 if fr < 10 else 10)
-        lead_n = int(0.05 * FS)
-        tr = np.arange(int(round(periods / fr * FS))) / FS
-        r = np.concatenate([_ramp(max(reach[0], 0.0), centre - amp, lead_n),
-                            centre - amp * np.cos(2 * np.pi * fr * tr)])
-        return r, lead_n
+    # Straight line through the ends of the measured major loop (the uncompensated baseline).
+    line = (float(u_id[:n_sine].min()), float(u_id[:n_sine].max()), float(y_id[:n_sine].min()),
+            float(y_id[:n_sine].max()))
 
     def track(label: str, mdl: Any, fr: float, method: str) -> None:
-        r, lead_n = reference(fr)
-        if method == "identity":
-            # Straight line through the ends of the measured major loop.
-            ymin, ymax = float(y_id[:n_sine].min()), float(y_id[:n_sine].max())
-            umin, umax = float(u_id[:n_sine].min()), float(u_id[:n_sine].max())
-            lr = run_loop(None, stage, umin + (r - ymin) * (umax - umin) / (ymax - ymin), method="identity")
-        else:
-            lr = run_loop(mdl, stage, r, method=method)
-        e = (r - lr.y)[lead_n + int(FS / fr):]  # steady state: after the lead-in and one period
-        chain = isinstance(mdl, preisach.Chain)
-        res.tracking.append({
-            "label": label.strip(), "n_h": None if mdl is None else (mdl.model.n_h if chain else mdl.n_h),
-            "freq_hz": fr, "method": f"chain inverse ({method})" if chain else method,
-            "rms_um": float(np.sqrt(np.mean(e ** 2))) * um, "max_um": float(np.abs(e).max()) * um,
-            "max_pct": float(np.abs(e).max() / amp * 100), "hf_db": _hf_db(lr.u[lead_n:]),
-            "p99_ns": None if method == "identity" else lr.timing.p99_ns,
-            "misses": lr.timing.misses, "samples": lr.timing.samples})
-        loops[label] = {"t": np.arange(r.size) / FS, "r": r, "u": lr.u, "y": lr.y}
+        r, lead_n = _reference(fr, quick, max(reach[0], 0.0), centre, amp)
+        loops[label] = _track(res, stage, label, mdl, fr, method, r, lead_n, amp, line)
 
     with pr.step(f"compensating 5 Hz and 50 Hz, 10 µm references ({len(runs)} runs in the 100 kHz loop)"):
         for label, mdl, fr, method in runs:
@@ -255,13 +235,7 @@ def run(out: Any = "preisach-demo", quick: bool = False, plots: Optional[bool] =
 
     # 6. compensation through the diagnosed chain (the chain inverse).
     with pr.step("compensating 5 Hz and 50 Hz with the diagnosed chain (chain inverse, 100 kHz loop)"):
-        diagnosed = _with_sample_rate(gap.chain, FS)
-        if diagnosed.model is not None and "rate" not in diagnosed.kinds():
-            for fr in (5.0, 50.0):
-                track(f"diagnosed chain  {fr:g} Hz  chain inverse", diagnosed, fr, "continuous")
-        else:
-            res.identification["warnings"].append(
-                f"the diagnosed chain ({' -> '.join(diagnosed.kinds())}) cannot be inverted; no chain compensation")
+        _compensate_with(gap.chain, res, track)
 
     # 7. files.
     with pr.step(f"writing records, model and report to {outdir}"):
@@ -307,8 +281,8 @@ def _plots(outdir: Path, model: Any, validation: tuple[NDArray[np.float64], ...]
         pl.append(P.plot_tracking(d["t"], d["r"] * um, d["y"] * um, outdir / f"fig12_tracking_{_slug(label)}.png",
                                   unit="µm", title=" ".join(label.split())))
     for fr in (5.0, 50.0):
-        runs = {lb: loops[lb] for lb in (f"n_h=100  {fr:g} Hz  continuous", f"diagnosed chain  {fr:g} Hz  chain inverse")
-                if lb in loops}
+        pair = (f"n_h=100  {fr:g} Hz  continuous", f"diagnosed chain  {fr:g} Hz  chain inverse")
+        runs = {lb: loops[lb] for lb in pair if lb in loops}
         if len(runs) == 2:
             err = {" ".join(lb.split()): (d["t"], (d["r"] - d["y"]) * um) for lb, d in runs.items()}
             pl.append(P.plot_errors(err, outdir / f"compensation_{fr:g}hz.png", unit="µm",
@@ -321,13 +295,52 @@ def _plots(outdir: Path, model: Any, validation: tuple[NDArray[np.float64], ...]
     return pl
 
 
-def _with_sample_rate(chain: Any, fs: float) -> Any:
-    """A copy of ``chain`` with the sample rate ``fs``."""
+def _reference(fr: float, quick: bool, start: float, centre: float, amp: float) -> tuple[NDArray[np.float64], int]:
+    """A tracking reference: a 50 ms ramp from ``start`` to the bottom, then a sine of
+    ``amp`` around ``centre``; returns it and the ramp's length."""
+    periods = (2 if fr < 10 else 5) if quick else (3 if fr < 10 else 10)
+    lead_n = int(0.05 * FS)
+    tr = np.arange(int(round(periods / fr * FS))) / FS
+    return np.concatenate([_ramp(start, centre - amp, lead_n), centre - amp * np.cos(2 * np.pi * fr * tr)]), lead_n
+
+
+def _track(res: DemoResult, stage: Any, label: str, mdl: Any, fr: float, method: str, r: NDArray[np.float64],
+           lead_n: int, amp: float, line: tuple[float, float, float, float]) -> dict[str, Any]:
+    """One run in the 100 kHz loop: appends its row to ``res.tracking``, returns its signals."""
+    import preisach
+    from preisach.sim import run_loop
+
+    if method == "identity":
+        umin, umax, ymin, ymax = line
+        lr = run_loop(None, stage, umin + (r - ymin) * (umax - umin) / (ymax - ymin), method="identity")
+    else:
+        lr = run_loop(mdl, stage, r, method=method)
+    e = (r - lr.y)[lead_n + int(FS / fr):]  # steady state: after the lead-in and one period
+    chain = isinstance(mdl, preisach.Chain)
+    um = 1.0 / SENSOR_V_PER_UM
+    res.tracking.append({
+        "label": label.strip(), "n_h": None if mdl is None else (mdl.model.n_h if chain else mdl.n_h),
+        "freq_hz": fr, "method": f"chain inverse ({method})" if chain else method,
+        "rms_um": float(np.sqrt(np.mean(e ** 2))) * um, "max_um": float(np.abs(e).max()) * um,
+        "max_pct": float(np.abs(e).max() / amp * 100), "hf_db": _hf_db(lr.u[lead_n:]),
+        "p99_ns": None if method == "identity" else lr.timing.p99_ns,
+        "misses": lr.timing.misses, "samples": lr.timing.samples})
+    return {"t": np.arange(r.size) / FS, "r": r, "u": lr.u, "y": lr.y}
+
+
+def _compensate_with(chain: Any, res: DemoResult, track: Any) -> None:
+    """The 5 Hz and 50 Hz runs with the chain inverse of ``chain`` (at the loop's rate),
+    or a warning in the report if it cannot be inverted."""
     import preisach
 
     c = preisach.Chain.from_dict(chain.to_dict())
-    c.sample_rate_hz = fs
-    return c
+    c.sample_rate_hz = FS
+    if c.model is None or "rate" in c.kinds():
+        res.identification["warnings"].append(
+            f"the diagnosed chain ({' -> '.join(c.kinds())}) cannot be inverted; no chain compensation")
+        return
+    for fr in (5.0, 50.0):
+        track(f"diagnosed chain  {fr:g} Hz  chain inverse", c, fr, "continuous")
 
 
 def _slug(label: str) -> str:

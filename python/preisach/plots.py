@@ -17,7 +17,8 @@ from numpy.typing import ArrayLike
 
 from preisach.io import PathLike, atomic_write
 
-__all__ = ["HINT", "available", "plot_compare", "plot_errors", "plot_loop", "plot_spectra", "plot_tracking", "plot_weights"]
+__all__ = ["HINT", "available", "plot_compare", "plot_errors", "plot_loop", "plot_spectra", "plot_tracking",
+           "plot_weights"]
 
 #: How to get the plots when matplotlib is missing.
 HINT = "plots need matplotlib: pip install 'preisach[plot]'"
