@@ -10,9 +10,9 @@ Three parts, printed as Markdown tables under the machine line:
    inverse of the true chain.
 2. **The ``paper`` preset** as ``preisach demo`` runs it (n_h = 100 identified, 10 µm
    references at 5 Hz and 50 Hz, the demo's peak error after the lead-in and one period),
-   with the chain the diagnosis found and with the identified model plus the preset's
-   true effects (creep normalized to static gain 1, the mode, the two 20 kHz low-passes:
-   this separates the diagnosis's error from the inverse's).
+   with the chain the diagnosis found and with the preset's true linear part after an
+   n_h = 100 model identified through it (the identification record with that part
+   inverted: this separates the diagnosis's error from the inverse's).
 3. **The independent rig** (``tests/rig.py``: no project block, a generalized
    Prandtl–Ishlinskii hysteresis) of class ``paper_mode_delay``: identified (n_h = 100)
    and diagnosed from its own records, then 5 Hz and 50 Hz feed-forward references
@@ -84,6 +84,35 @@ def per_effect(quick: bool) -> list[dict[str, Any]]:
     return rows
 
 
+#: The `paper` preset's linear blocks after its hysteresis (the DAC's 20 kHz
+#: reconstruction filter moved behind it), in sensor volts.
+PAPER_POST = [{"type": "creep", "taus_s": [0.1, 1.0, 10.0, 100.0], "amplitudes": [0.01] * 4},
+              {"type": "lowpass", "cutoff_hz": 20e3, "order": 2},
+              {"type": "vibration", "modes": [{"frequency_hz": 780.0, "damping": 0.02}]},
+              {"type": "sensor", "gain": 0.2, "lowpass": {"cutoff_hz": 20e3, "order": 4}}]
+
+
+def _identified_through_true_effects() -> Any:
+    """n_h = 100 identified on the demo's identification record with the preset's true
+    linear part taken out (the record run through the chain inverse of an identity
+    hysteresis followed by that part, 3 kHz bandwidth), followed by that part."""
+    import preisach
+    from preisach import demo
+    from preisach.sim import Stage
+
+    u, n_sine = demo.identification_input(False)
+    stage = Stage.preset("paper")
+    y = demo._record(stage, u)[:n_sine]
+    lo, hi, n = -20.0, 80.0, 500  # µm; the identity on this range
+    identity = preisach.PreisachModel(np.diag(np.full(n, (hi - lo) / (2 * n))), (lo, hi), (lo + hi) / 2,
+                                      "interpolated")
+    linear = preisach.Chain.from_blocks(preisach.Chain(identity).blocks + PAPER_POST)
+    rest = 20000  # the record starts after 0.1 s at rest
+    h = linear.invert(np.concatenate([np.full(rest, y[0]), y]), FS, bandwidth_hz=3000.0)[rest:]
+    model = preisach.PreisachModel.fit(u[:n_sine], h, 100)
+    return preisach.Chain.from_blocks(preisach.Chain(model).blocks + PAPER_POST)
+
+
 def paper(quick: bool) -> list[dict[str, Any]]:
     import preisach
     from preisach import demo
@@ -91,15 +120,10 @@ def paper(quick: bool) -> list[dict[str, Any]]:
 
     with tempfile.TemporaryDirectory() as d:
         res = demo.run(d, quick=quick, plots=False, progress=None)
-        model = preisach.PreisachModel.load(Path(d) / "model_nh100.json")
         diagnosed = preisach.Chain.load(Path(d) / "diagnosis_chain.json")
     by = {r["label"]: r for r in res.tracking}
-    # The identified model with the preset's true effects (static gains already in the model).
-    true_eff = [{"type": "creep", "taus_s": [0.1, 1.0, 10.0, 100.0], "amplitudes": [0.01] * 4, "normalized": True},
-                {"type": "lowpass", "cutoff_hz": 20e3, "order": 2},
-                {"type": "vibration", "modes": [{"frequency_hz": 780.0, "damping": 0.02}]},
-                {"type": "lowpass", "cutoff_hz": 20e3, "order": 4}]
-    true_chain = preisach.Chain.from_blocks(preisach.Chain(model).blocks + true_eff)
+    true_chain = _identified_through_true_effects()
+    model = true_chain.model
     stage = Stage.preset("paper")
     sv = demo.SENSOR_V_PER_UM
     w = float(model.weights.sum())
@@ -109,7 +133,7 @@ def paper(quick: bool) -> list[dict[str, Any]]:
         periods = (2 if f < 10 else 5) if quick else (3 if f < 10 else 10)
         lead_n = int(0.05 * FS)
         tr = np.arange(int(round(periods / f * FS))) / FS
-        r = np.concatenate([demo._ramp(max(model.offset - w, 0.0), centre - amp, lead_n),
+        r = np.concatenate([demo._ramp(max(sv * (model.offset - w), 0.0), centre - amp, lead_n),
                             centre - amp * np.cos(2 * np.pi * f * tr)])
         y = run_loop(true_chain, stage, r).y
         skip = lead_n + int(FS / f)

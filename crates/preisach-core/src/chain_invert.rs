@@ -168,22 +168,21 @@ impl ChainInverter {
         let need = (preview - 1e-9).ceil().max(0.0) as usize;
         let interp = method == Method::Interpolated;
         let latency = match lookahead {
-            Some(l) if l < need + usize::from(interp) => {
-                return Err(PreisachError::invalid(
-                    "lookahead",
-                    format!(
-                        "must be at least {} samples (the chain's delay and the low-pass's group delay: {:.3} samples{})",
-                        need + usize::from(interp),
-                        preview,
-                        if interp { ", plus one for the interpolated inverse" } else { "" }
-                    ),
-                ))
-            }
+            Some(l) if l < need + usize::from(interp) => return Err(PreisachError::invalid(
+                "lookahead",
+                format!(
+                    "must be at least {} samples (the chain's delay and the low-pass's group delay: {:.3} samples{})",
+                    need + usize::from(interp),
+                    preview,
+                    if interp { ", plus one for the interpolated inverse" } else { "" }
+                ),
+            )),
             Some(l) => l,
             None if interp => need + DEFAULT_INTERPOLATED_LOOKAHEAD,
             None => need,
         };
-        let (h_look, shift) = if interp { (Some(latency - need), need as f64 - preview) } else { (None, latency as f64 - preview) };
+        let (h_look, shift) =
+            if interp { (Some(latency - need), need as f64 - preview) } else { (None, latency as f64 - preview) };
         let dt = 1.0 / fs;
         Ok(ChainInverter {
             drift: plan.drift.clone(),

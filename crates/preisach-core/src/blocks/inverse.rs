@@ -165,7 +165,11 @@ fn zeros_and_gain(s: &Section) -> Result<(Vec<C>, f64)> {
 fn invert_section(s: &Section, wb: f64) -> Result<(Section, f64)> {
     let (zeros, k) = zeros_and_gain(s)?;
     if let Some(z) = zeros.iter().find(|z| z.re >= -MIN_PHASE_TOL * z.norm()) {
-        let what = if z.norm() == 0.0 { "a zero at s = 0 (no static gain)".to_string() } else { format!("a zero at {z:.4e} rad/s") };
+        let what = if z.norm() == 0.0 {
+            "a zero at s = 0 (no static gain)".to_string()
+        } else {
+            format!("a zero at {z:.4e} rad/s")
+        };
         return Err(PreisachError::invalid(
             "section",
             format!("not minimum phase ({what}): its inverse would be unstable"),
@@ -181,7 +185,9 @@ fn invert_section(s: &Section, wb: f64) -> Result<(Section, f64)> {
         if sigma[a + 1..].iter().any(|&y| (x - y).norm() <= 1e-9 * x.norm()) {
             return Err(PreisachError::invalid(
                 "bandwidth_hz",
-                format!("a pole of the low-pass falls on a zero of the block ({x:.4e} rad/s): choose another bandwidth"),
+                format!(
+                    "a pole of the low-pass falls on a zero of the block ({x:.4e} rad/s): choose another bandwidth"
+                ),
             ));
         }
     }

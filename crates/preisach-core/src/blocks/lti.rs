@@ -462,7 +462,8 @@ impl DelayLine {
     /// Restore [`DelayLine::state`] of a line of the same delay; on error unchanged.
     pub fn set_state(&mut self, s: &[f64]) -> Result<()> {
         let n = self.buf.len();
-        let ok = s.len() == 2 + n && (s[0] == 0.0 || s[0] == 1.0) && s[1] >= 0.0 && s[1] < n as f64 && s[1].fract() == 0.0;
+        let ok =
+            s.len() == 2 + n && (s[0] == 0.0 || s[0] == 1.0) && s[1] >= 0.0 && s[1] < n as f64 && s[1].fract() == 0.0;
         if !ok {
             return Err(PreisachError::invalid(
                 "state",
