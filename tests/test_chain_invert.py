@@ -10,12 +10,13 @@ from __future__ import annotations
 import json
 
 import numpy as np
-import preisach
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from independent_stage import draw_effects, true_hysteresis
 from independent_stage import simulate as independent_simulate
+
+import preisach
 from preisach import Chain, ChainInverter, PreisachModel
 from preisach.cli import main
 from preisach.sim import Stage
