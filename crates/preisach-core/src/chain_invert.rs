@@ -168,15 +168,17 @@ impl ChainInverter {
         let need = (preview - 1e-9).ceil().max(0.0) as usize;
         let interp = method == Method::Interpolated;
         let latency = match lookahead {
-            Some(l) if l < need + usize::from(interp) => return Err(PreisachError::invalid(
-                "lookahead",
-                format!(
+            Some(l) if l < need + usize::from(interp) => {
+                return Err(PreisachError::invalid(
+                    "lookahead",
+                    format!(
                     "must be at least {} samples (the chain's delay and the low-pass's group delay: {:.3} samples{})",
                     need + usize::from(interp),
                     preview,
                     if interp { ", plus one for the interpolated inverse" } else { "" }
                 ),
-            )),
+                ))
+            }
             Some(l) => l,
             None if interp => need + DEFAULT_INTERPOLATED_LOOKAHEAD,
             None => need,
@@ -302,4 +304,61 @@ pub fn invert_chain(inv: &mut ChainInverter, r: &[f64]) -> Result<(Vec<f64>, u64
         }
     }
     Ok((u, inv.saturated()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::blocks::{
+        BlockSpec, CreepParams, DelayParams, HysteresisParams, IdentifiedHysteresis, LowpassParams, Mode, Output,
+        VibrationParams,
+    };
+    use crate::{Grid, PreisachModel};
+
+    fn chain() -> Chain {
+        let n = 30;
+        let grid = Grid::new(0.0, 10.0, n).unwrap();
+        let masses: Vec<f64> = (0..n)
+            .flat_map(|i| (i..n).map(move |j| if i == j { 0.02 } else { 0.01 / (1.0 + (j - i) as f64) }))
+            .collect();
+        let model = PreisachModel::new(grid, masses, 0.0).unwrap();
+        Chain::new(vec![
+            BlockSpec::Hysteresis(HysteresisParams::Identified(IdentifiedHysteresis::of_model(
+                &model,
+                Output::Interpolated,
+            ))),
+            BlockSpec::Creep(CreepParams { taus_s: vec![0.02], amplitudes: vec![0.05], normalized: false }),
+            BlockSpec::Vibration(VibrationParams { modes: vec![Mode { frequency_hz: 700.0, damping: 0.03 }] }),
+            BlockSpec::Lowpass(LowpassParams { cutoff_hz: 1500.0, order: 2 }),
+            BlockSpec::Delay(DelayParams { delay_s: 3.3e-4 }),
+        ])
+        .unwrap()
+    }
+
+    #[test]
+    fn the_chain_follows_its_inverse_and_streaming_equals_offline() {
+        let fs = 20e3;
+        let c = chain();
+        let plan = Plan::new(&c, fs, None).unwrap();
+        assert_eq!(plan.bandwidth_hz, 2000.0); // 2 x 1500 Hz, capped at fs / 10
+        let mut inv = ChainInverter::new(&plan, Method::Continuous, None).unwrap();
+        // At rest for 200 samples, then a 20 Hz sine.
+        let r: Vec<f64> = (0..3000)
+            .map(|k| {
+                let t = k.saturating_sub(200) as f64 / fs;
+                1.05 * (0.6 - 0.3 * (std::f64::consts::TAU * 20.0 * t).cos())
+            })
+            .collect();
+        let (u, sat) = invert_chain(&mut inv, &r).unwrap();
+        assert_eq!(sat, 0);
+        let t: Vec<f64> = (0..r.len()).map(|k| k as f64 / fs).collect();
+        let y = c.predict(&t, &u, None).unwrap();
+        let err = r[1200..2900].iter().zip(&y[1200..2900]).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        assert!(err < 1e-3 * 0.3, "peak error {err}");
+        let l = inv.latency();
+        inv.reset();
+        let streamed: Vec<f64> =
+            r.iter().chain(std::iter::repeat_n(&r[r.len() - 1], l)).map(|&x| inv.step(x)).collect();
+        assert_eq!(&streamed[l..], &u[..]);
+    }
 }
