@@ -344,7 +344,7 @@ mod tests {
         let mut inv = ChainInverter::new(&plan, Method::Continuous, None).unwrap();
         // At rest for 200 samples, then a 20 Hz sine.
         let r: Vec<f64> = (0..3000)
-            .map(|k| {
+            .map(|k: usize| {
                 let t = k.saturating_sub(200) as f64 / fs;
                 1.05 * (0.6 - 0.3 * (std::f64::consts::TAU * 20.0 * t).cos())
             })
