@@ -8,7 +8,7 @@ from typing_extensions import final
 __version__: str
 __all__ = [
     "__version__", "Model", "Stream", "fit", "fit_behind", "Behind", "regression_rows", "invert",
-    "InverseStream", "Chain", "run_loop", "sample_period",
+    "InverseStream", "Chain", "run_loop", "run_loop_chain", "ChainInverseStream", "sample_period",
 ]
 
 # --- core (model, stream, identification) ---

@@ -206,7 +206,8 @@ def run_loop(model: Any, stage: Chain, reference: ArrayLike, method: str = "cont
     if method != "identity":
         core = getattr(model, "_core", None)
         if not isinstance(core, _preisach.Model):
-            raise ValueError(f"model: expected a preisach.PreisachModel or a preisach.Chain, got {type(model).__name__}")
+            raise ValueError("model: expected a preisach.PreisachModel or a preisach.Chain, "
+                             f"got {type(model).__name__}")
     d = _preisach.run_loop(core, stage._core, r, method, lookahead)
     return _loop_result(d)
 
