@@ -164,9 +164,11 @@ def test_simulate_runs_at_the_input_rate_and_names_a_bad_time_row(tmp_path, caps
     assert len(err.splitlines()) == 1 and "must increase strictly, but row 40" in err
 
 
-def test_invert_takes_a_model_of_either_version_and_refuses_a_chain(tmp_path, record, capsys):
+def test_invert_takes_a_model_of_either_version_and_a_chain(tmp_path, record, capsys):
+    from preisach import Chain
+
     p, truth = record
-    v1, v2, chain, _ = _files(tmp_path, truth)
+    v1, v2, chain, stage = _files(tmp_path, truth)
     rec = np.loadtxt(p, delimiter=",", skiprows=1)
     _write(tmp_path / "ref.csv", t=rec[:, 0], r=rec[:, 2])
     got = []
@@ -174,10 +176,17 @@ def test_invert_takes_a_model_of_either_version_and_refuses_a_chain(tmp_path, re
         assert main(["invert", str(f), str(tmp_path / "ref.csv"), "-o", str(tmp_path / "u.csv")]) == 0
         got.append(np.loadtxt(tmp_path / "u.csv", delimiter=",", skiprows=1)[:, 1])
     np.testing.assert_array_equal(got[0], got[1])
-    capsys.readouterr()
-    assert main(["invert", str(chain), str(tmp_path / "ref.csv"), "-o", str(tmp_path / "u.csv")]) == 1
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "not a single identified model" in err
+    # A chain with effects: the chain inverse at the record's rate.
+    assert main(["invert", str(chain), str(tmp_path / "ref.csv"), "-o", str(tmp_path / "u.csv")]) == 0
+    u = np.loadtxt(tmp_path / "u.csv", delimiter=",", skiprows=1)[:, 1]
+    np.testing.assert_allclose(u, Chain.load(chain).invert(rec[:, 2], 1e4), rtol=0, atol=1e-12)
+    assert "chain inverse" in capsys.readouterr().out
+    # A stage's noise is left out: the same input as for the model alone.
+    assert main(["invert", str(stage), str(tmp_path / "ref.csv"), "-o", str(tmp_path / "u.csv")]) == 0
+    u = np.loadtxt(tmp_path / "u.csv", delimiter=",", skiprows=1)[:, 1]
+    np.testing.assert_allclose(u, truth.invert(rec[:, 2], method="continuous"), rtol=0, atol=1e-9)
+    assert main(["invert", str(v2), str(tmp_path / "ref.csv"), "-o", str(tmp_path / "u.csv"), "--bandwidth", "9"]) == 2
+    assert "--bandwidth is for a chain" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("block,msg", [

@@ -42,8 +42,8 @@ def _rows(out: Path) -> dict[str, dict]:
 
 def test_progress_and_summary(demo):
     out, stdout, stderr = demo
-    for k in range(1, 8):
-        assert f"[{k}/7]" in stderr
+    for k in range(1, 9):
+        assert f"[{k}/8]" in stderr
     assert "identifying n_h=100" in stderr
     assert "RMS err" in stdout and "continuous" in stdout and "report.md" in stdout
     assert "dominant effect" in stdout
@@ -64,7 +64,7 @@ def test_records_are_readable_and_consistent(demo):
     # 0.2 V/µm: the 0..~40 µm stroke is ~0..8 V of sensor output.
     assert 5.0 < ident["y"].max() < 10.0
     tracks = sorted(out.glob("tracking_*.csv"))
-    assert len(tracks) == 8
+    assert len(tracks) == 10
     for p in tracks:
         rec = read_record(p, ["t", "r", "u", "y"])
         # The reference: 10 µm amplitude (2 V of sensor output) around 20 µm.
@@ -79,7 +79,9 @@ def test_records_are_readable_and_consistent(demo):
 def test_report_numbers_follow_the_paper(demo):
     out, _, _ = demo
     rows = _rows(out)
-    assert len(rows) == 8
+    assert len(rows) == 10
+    # The diagnosed chain compensates too (the chain inverse in the loop).
+    assert {"diagnosed chain  5 Hz  chain inverse", "diagnosed chain  50 Hz  chain inverse"} <= set(rows)
     unc = rows["uncompensated (straight line)  5 Hz"]["rms"]
     for label, r in rows.items():
         if not label.startswith("uncompensated"):
@@ -121,7 +123,8 @@ def test_diagnosis_finds_the_stage_resonance(demo):
 def test_figures_are_written(demo):
     out, _, _ = demo
     for name in ("fig6b_weights.png", "fig8_model_vs_measured.png", "fig12_tracking_nh100_5hz_interpolated.png",
-                 "spectra_inputs_5hz.png", "spectra_inputs_50hz.png"):
+                 "spectra_inputs_5hz.png", "spectra_inputs_50hz.png", "compensation_5hz.png",
+                 "compensation_50hz.png"):
         p = out / name
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
     assert list((out / "diagnosis").glob("*.png"))

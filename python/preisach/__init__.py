@@ -6,7 +6,8 @@ Rust core (``preisach._preisach``) with a thin Python API:
 - :class:`PreisachModel`: ``fit``, ``predict``, ``stream``, ``invert``, ``inverter``,
   ``save`` / ``load``;
 - :class:`Chain`: blocks in series (a stage, a model, a model plus effects), with
-  ``predict`` / ``simulate`` on records; :func:`load` reads any model, chain or stage file;
+  ``predict`` / ``simulate`` on records, ``invert`` / ``inverter`` (feed-forward through
+  the whole chain); :func:`load` reads any model, chain or stage file;
 - :func:`read_record`: a record (CSV ``t,u,y`` or ``.npz``) as arrays;
 - :func:`compare`: a model's fit on a record (fit %, RMSE, max error), as MATLAB's
   ``compare``; :mod:`preisach.plots` draws it;
@@ -18,6 +19,7 @@ Rust core (``preisach._preisach``) with a thin Python API:
 from __future__ import annotations
 
 from preisach import plots, sim
+from preisach._chain_inverse import ChainInversionInfo, ChainInverter
 from preisach._preisach import __version__
 from preisach.chain import Chain, load
 from preisach.comparison import Comparison, compare, fit_percent
@@ -25,5 +27,6 @@ from preisach.diagnose import GapReport, diagnose
 from preisach.io import read_record
 from preisach.model import FitReport, FittedModel, PreisachModel, PreisachWarning, Stream
 
-__all__ = ["Chain", "Comparison", "FitReport", "FittedModel", "GapReport", "PreisachModel", "PreisachWarning",
-           "Stream", "__version__", "compare", "diagnose", "fit_percent", "load", "plots", "read_record", "sim"]
+__all__ = ["Chain", "ChainInversionInfo", "ChainInverter", "Comparison", "FitReport", "FittedModel", "GapReport",
+           "PreisachModel", "PreisachWarning", "Stream", "__version__", "compare", "diagnose", "fit_percent", "load",
+           "plots", "read_record", "sim"]

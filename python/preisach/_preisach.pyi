@@ -9,7 +9,8 @@ __version__: str
 DEFAULT_DIAGONAL_FLOOR: float
 __all__ = [
     "__version__", "DEFAULT_DIAGONAL_FLOOR", "Model", "Stream", "fit", "fit_behind", "Behind", "regression_rows",
-    "invert", "saturation", "InverseStream", "Chain", "run_loop", "sample_period",
+    "invert", "saturation", "InverseStream", "Chain", "run_loop", "run_loop_chain", "ChainInverseStream",
+    "sample_period",
 ]
 
 # --- core (model, stream, identification) ---
@@ -173,3 +174,46 @@ def run_loop(
     method: str = "continuous",
     lookahead: int | None = None,
 ) -> dict[str, Any]: ...
+def run_loop_chain(inverse: ChainInverseStream, chain: Chain, reference: NDArray[np.float64]) -> dict[str, Any]: ...
+
+# --- the chain inverse ---
+@final
+class ChainInverseStream:
+    def __new__(
+        cls,
+        chain: Chain,
+        sample_rate_hz: float,
+        method: str = "continuous",
+        lookahead: int | None = None,
+        bandwidth_hz: float | None = None,
+    ) -> ChainInverseStream: ...
+    def step(self, r: float) -> float: ...
+    def process(self, block: NDArray[np.float64]) -> NDArray[np.float64]: ...
+    def invert(self, r: NDArray[np.float64]) -> tuple[NDArray[np.float64], int]: ...
+    def reset(self) -> None: ...
+    @property
+    def latency(self) -> int: ...
+    @property
+    def preview_s(self) -> float: ...
+    @property
+    def bandwidth_hz(self) -> float: ...
+    @property
+    def method(self) -> str: ...
+    @property
+    def saturated(self) -> int: ...
+    def get_state(self) -> dict[str, Any]: ...
+    def set_state(
+        self,
+        n: int,
+        post: NDArray[np.float64],
+        shift: NDArray[np.float64],
+        pre: NDArray[np.float64],
+        memory: NDArray[np.float64],
+        saturated: int,
+        t: int,
+        u_prev: float,
+        last_cm: float,
+        knot_t: NDArray[np.uint64],
+        knot_v: NDArray[np.float64],
+        r_prev: float,
+    ) -> None: ...

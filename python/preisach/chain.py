@@ -23,8 +23,9 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
-from typing import Any, Mapping, Optional, TypeVar, Union
+from typing import TYPE_CHECKING, Any, Mapping, Optional, TypeVar, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -33,6 +34,9 @@ from preisach import _preisach
 from preisach._validate import as_signal
 from preisach.io import PathLike, write_text
 from preisach.model import PreisachModel
+
+if TYPE_CHECKING:
+    from preisach._chain_inverse import ChainInverter
 
 FORMAT = "preisach-chain"
 VERSION = 2
@@ -271,6 +275,58 @@ class Chain:
         """Frequency response of the chain's linear blocks (creep, vibration, lowpass,
         delay, sensor; any other block is an error) at ``f_hz``."""
         return self._core.response(as_signal("f_hz", f_hz, allow_empty=True))  # type: ignore[no-any-return]
+
+    # --- the chain inverse -----------------------------------------------------------
+    def inverter(self, fs: Optional[float] = None, lookahead: Optional[int] = None, method: str = "continuous",
+                 bandwidth_hz: Optional[float] = None) -> "ChainInverter":
+        """A streaming inverse of the chain at ``fs`` Hz (default: the chain's own rate):
+        reference samples in, inputs out, :attr:`~preisach.ChainInverter.latency`
+        samples late (see ``docs/method/inversion.md``, "Inverting a chain").
+
+        ``lookahead``: the latency in samples (at least the chain's delay plus the
+        low-pass's group delay, rounded up; for ``method="interpolated"`` what exceeds
+        that is the interpolation's look-ahead); None = the least (``interpolated``: plus
+        2000 samples). ``method``: the hysteresis inverse (``continuous``,
+        ``interpolated``, ``closest``). ``bandwidth_hz``: the linear inverse's bandwidth
+        (below Nyquist); None = twice the fastest lag of the chain's linear blocks, at
+        most a tenth of ``fs``."""
+        from preisach._chain_inverse import ChainInverter
+
+        if fs is None:
+            fs = self.sample_rate_hz
+            if fs is None:
+                raise ValueError("fs: the chain has no sample_rate_hz; give the rate of the reference")
+        return ChainInverter(self, fs, method, lookahead, bandwidth_hz)
+
+    def invert(self, r: ArrayLike, fs: Optional[float] = None, method: str = "continuous",
+               bandwidth_hz: Optional[float] = None, lookahead: Optional[int] = None,
+               return_info: bool = False) -> Any:
+        """The input ``u`` whose chain output follows the reference ``r`` (1-D, finite,
+        sampled at ``fs`` Hz, default the chain's own rate): feed-forward through the
+        whole chain, ``u[n]`` belongs to ``r[n]`` (the preview is taken from ``r``
+        itself; past its end the last sample is held). Equal to the streaming
+        :meth:`inverter` once past its latency. Arguments as :meth:`inverter`;
+        ``return_info`` also returns a :class:`~preisach.ChainInversionInfo`.
+
+        A NaN or inf in ``r`` raises ``ValueError`` naming its index; so does a chain
+        that cannot be inverted (naming the block). References that ask the hysteresis
+        for an output beyond its reachable range are clipped, counted and reported in one
+        :class:`~preisach.PreisachWarning`."""
+        from preisach._chain_inverse import ChainInversionInfo
+
+        rr = as_signal("r", r)
+        inv = self.inverter(fs, lookahead, method, bandwidth_hz)
+        u, sat = inv.invert(rr)
+        if sat:
+            from preisach.model import PreisachWarning
+
+            warnings.warn(f"{sat} of {rr.size} reference samples ask the hysteresis for an output beyond its "
+                          "reachable range: they were clipped (the input stays at the end of u_range there)",
+                          PreisachWarning, stacklevel=2)
+        if return_info:
+            return u, ChainInversionInfo(method=inv.method, latency=inv.latency, preview_s=inv.preview_s,
+                                         bandwidth_hz=inv.bandwidth_hz, saturated=sat)
+        return u
 
     # --- per sample at the chain's own rate ------------------------------------------
     @property

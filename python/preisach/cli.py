@@ -16,6 +16,7 @@ EXAMPLES = {
     "identify": "example: preisach identify examples/paper_ident.csv --n-h 40 -o model.json",
     "predict": "example: preisach predict model.json examples/paper_ident.csv -o predicted.csv",
     "invert": "example: preisach invert model.json reference.csv -o input.csv\n"
+              "         preisach invert aug.json reference.csv -o input.csv --bandwidth 2000\n"
               "         preisach invert model.json reference.csv -o input.csv --method interpolated --lookahead 100",
     "simulate": "example: preisach simulate --preset paper input.csv -o measured.csv",
     "diagnose": "example: preisach diagnose train.csv --holdout steps.csv --holdout sine50.csv "
@@ -129,22 +130,30 @@ def _cmd_predict(a: argparse.Namespace) -> int:
 
 
 def _cmd_invert(a: argparse.Namespace) -> int:
-    from preisach.chain import load
+    from preisach.chain import load, sample_period
     from preisach.io import read_record, write_csv
     from preisach.model import PreisachModel, PreisachWarning
 
     if a.lookahead is not None and a.method != "interpolated":
         raise UsageError(f"preisach invert: --lookahead is for --method interpolated, not {a.method} (see --help)")
-    model = load(a.model)
-    if not isinstance(model, PreisachModel):
-        raise ValueError(f"{a.model}: a chain ({' -> '.join(model.kinds())}), not a single identified model: "
-                         f"invert inverts a model (identify one, or use the model the chain was built on)")
+    obj = load(a.model)
+    if isinstance(obj, PreisachModel) and a.bandwidth is not None:
+        raise UsageError("preisach invert: --bandwidth is for a chain with effects, not a single model (see --help)")
     rec = read_record(a.ref, ["t", "r"])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", PreisachWarning)
-        u = model.invert(rec["r"], method=a.method, lookahead=a.lookahead)
+        if isinstance(obj, PreisachModel):
+            u = obj.invert(rec["r"], method=a.method, lookahead=a.lookahead)
+            done = f", method {a.method}"
+        else:
+            fs = 1.0 / sample_period(rec["t"], "t")
+            u, info = obj.invert(rec["r"], fs, method=a.method, bandwidth_hz=a.bandwidth, lookahead=a.lookahead,
+                                 return_info=True)
+            done = (f"; chain inverse of {' -> '.join(obj.kinds())}, hysteresis method {a.method}, bandwidth "
+                    f"{info.bandwidth_hz:.6g} Hz, preview {info.preview_s * 1e3:.4g} ms, latency {info.latency} "
+                    "samples when streamed")
     write_csv(a.output_path, {"t": rec["t"], "u": u})
-    print(f"wrote {a.output_path} ({len(u)} samples, method {a.method})")
+    print(f"wrote {a.output_path} ({len(u)} samples{done})")
     for w in caught:
         print(f"warning: {w.message}", file=sys.stderr)
     return 0
@@ -331,9 +340,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", default=None, metavar="OUT.json", help="write the figures as JSON")
     s.set_defaults(func=_cmd_compare)
 
-    s = add("invert", "Input that makes the model follow a reference (t,r); writes t,u. References beyond "
-                      "the model's reachable output are clipped and counted (one warning line).")
-    s.add_argument("model", metavar="MODEL.json", help="a model file")
+    s = add("invert", "Input that makes the model (or the whole chain) follow a reference (t,r); writes t,u. "
+                      "References beyond the reachable output are clipped and counted (one warning line).")
+    s.add_argument("model", metavar="MODEL|CHAIN.json",
+                   help="a model file, or a chain with effects (e.g. from diagnose --save-model): the chain "
+                        "inverse (linear blocks inverted within --bandwidth, delays taken by preview)")
     s.add_argument("ref", metavar="REF.csv", help="reference with columns t,r")
     s.add_argument("--method", choices=["closest", "interpolated", "continuous"], default="continuous",
                    help="continuous: smooth input, no look-ahead (for a real stage; smooth at the reference's "
@@ -341,7 +352,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "closest: the paper's "
                         "per-sample closest match (a staircase); interpolated: the paper's Fig. 9 smoothing")
     s.add_argument("--lookahead", type=_nonneg_int, default=None, metavar="N",
-                   help="preview samples for --method interpolated (default: the whole record)")
+                   help="preview samples for --method interpolated (default: the whole record; for a chain, "
+                        "the inverter's latency, default its preview + 2000)")
+    s.add_argument("--bandwidth", type=float, default=None, metavar="HZ",
+                   help="a chain only: bandwidth of the linear inverse, below Nyquist (default: twice the fastest "
+                        "lag of the chain's linear blocks, at most a tenth of the record's rate)")
     s.add_argument("-o", dest="output_path", required=True, metavar="U.csv", help="where to write t,u")
     s.set_defaults(func=_cmd_invert)
 

@@ -17,7 +17,8 @@ from numpy.typing import ArrayLike
 
 from preisach.io import PathLike, atomic_write
 
-__all__ = ["HINT", "available", "plot_compare", "plot_loop", "plot_spectra", "plot_tracking", "plot_weights"]
+__all__ = ["HINT", "available", "plot_compare", "plot_errors", "plot_loop", "plot_spectra", "plot_tracking",
+           "plot_weights"]
 
 #: How to get the plots when matplotlib is missing.
 HINT = "plots need matplotlib: pip install 'preisach[plot]'"
@@ -107,6 +108,19 @@ def plot_tracking(t: ArrayLike, reference: ArrayLike, measured: ArrayLike, path:
     ax[1].legend(loc="best")
     for a in ax:
         a.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def plot_errors(errors: Mapping[str, tuple[ArrayLike, ArrayLike]], path: PathLike, unit: str = "V",
+                title: str = "") -> str:
+    """Tracking errors over time, one line per run (label -> (t, error))."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(10, 4.2))
+    for label, (t, e) in errors.items():
+        ax.plot(np.asarray(t, dtype=np.float64), np.asarray(e, dtype=np.float64), lw=0.8, label=label)
+    ax.set(xlabel="time [s]", ylabel=f"error [{unit}]", title=title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best")
     return _save(fig, path)
 
 

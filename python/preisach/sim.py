@@ -142,15 +142,18 @@ class LoopResult:
 
 
 def run_loop(model: Any, stage: Chain, reference: ArrayLike, method: str = "continuous",
-             lookahead: Optional[int] = None) -> LoopResult:
+             lookahead: Optional[int] = None, bandwidth_hz: Optional[float] = None) -> LoopResult:
     """Run the hardware-in-the-loop style sample loop: reference → compensator → DAC →
     plant chain → sensor, one sample at a time in Rust, timed per sample.
 
     Parameters
     ----------
-    model : PreisachModel or None
-        The identified model the compensator inverts (``None`` only for
-        ``method="identity"``). It maps the stage's input (DAC volts) to its output.
+    model : PreisachModel, Chain or None
+        What the compensator inverts. A :class:`~preisach.PreisachModel` (the
+        hysteresis inverse alone; it maps the stage's input, DAC volts, to its output);
+        a :class:`~preisach.Chain` holding an identified model (e.g. a diagnosed chain):
+        the chain inverse (:meth:`~preisach.Chain.inverter` at the stage's rate, the
+        reference fed ahead by its latency); ``None`` only for ``method="identity"``.
     stage : Stage or Chain
         The plant, run at its own sample rate (a chain without one, e.g. a diagnosed
         chain saved without it, is refused); it is reset first (rest, time 0) and left in
@@ -162,9 +165,13 @@ def run_loop(model: Any, stage: Chain, reference: ArrayLike, method: str = "cont
         ``interpolated``: closest match smoothed by linear interpolation (the paper's Fig. 9),
         streaming with ``lookahead`` samples of preview (default 2000); the reference
         is fed ahead by that much so ``u`` lines up with it (feed-forward);
-        ``closest``: closest match (steps); ``identity``: ``u = reference``.
+        ``closest``: closest match (steps); ``identity``: ``u = reference``. With a
+        chain, the hysteresis inverse inside the chain inverse.
     lookahead : int, optional
-        Only for ``interpolated``.
+        Only for ``interpolated``; with a chain, the chain inverter's latency.
+    bandwidth_hz : float, optional
+        Only with a chain: the linear inverse's bandwidth (default: see
+        :meth:`~preisach.Chain.inverter`).
 
     Returns
     -------
@@ -175,6 +182,18 @@ def run_loop(model: Any, stage: Chain, reference: ArrayLike, method: str = "cont
         raise ValueError(f"stage: expected a preisach.sim.Stage or a preisach.Chain, got {type(stage).__name__}")
     if method not in METHODS:
         raise ValueError(f"method: expected one of {', '.join(repr(m) for m in METHODS)}, got {method!r}")
+    r = as_signal("reference", reference)
+    if isinstance(model, Chain):
+        if method == "identity":
+            raise ValueError("method: 'identity' takes no model; pass model=None")
+        fs = stage.sample_rate_hz
+        if fs is None:
+            raise ValueError("stage: the chain has no sample_rate_hz to run at")
+        inv = model.inverter(fs, lookahead=lookahead, method=method, bandwidth_hz=bandwidth_hz)
+        d = _preisach.run_loop_chain(inv._stream, stage._core, r)
+        return _loop_result(d)
+    if bandwidth_hz is not None:
+        raise ValueError("bandwidth_hz: only meaningful when model is a Chain")
     if method == "interpolated" and lookahead is None:
         lookahead = DEFAULT_LOOKAHEAD
     if lookahead is not None:
@@ -187,9 +206,13 @@ def run_loop(model: Any, stage: Chain, reference: ArrayLike, method: str = "cont
     if method != "identity":
         core = getattr(model, "_core", None)
         if not isinstance(core, _preisach.Model):
-            raise ValueError(f"model: expected a preisach.PreisachModel, got {type(model).__name__}")
-    r = as_signal("reference", reference)
+            raise ValueError("model: expected a preisach.PreisachModel or a preisach.Chain, "
+                             f"got {type(model).__name__}")
     d = _preisach.run_loop(core, stage._core, r, method, lookahead)
+    return _loop_result(d)
+
+
+def _loop_result(d: Any) -> LoopResult:
     timing = Timing(float(d["mean_ns"]), float(d["p99_ns"]), float(d["max_ns"]), int(d["misses"]),
                     float(d["budget_ns"]), int(d["samples"]))
     return LoopResult(u=d["u"], y=d["y"], error=d["error"], timing=timing)

@@ -25,5 +25,6 @@ pub use memory::Memory;
 pub use model::PreisachModel;
 pub use relay_grid::RelayGrid;
 pub mod blocks;
+pub mod chain_invert;
 pub mod invert;
 pub mod sim;

@@ -12,6 +12,7 @@ use preisach_core::{PreisachError, PreisachModel};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 
+mod chain_invert;
 mod identify;
 mod invert;
 mod sim;
@@ -191,5 +192,6 @@ fn _preisach(m: &Bound<'_, PyModule>) -> PyResult<()> {
     identify::register(m)?;
     invert::register(m)?;
     sim::register(m)?;
+    chain_invert::register(m)?;
     Ok(())
 }

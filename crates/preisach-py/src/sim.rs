@@ -10,6 +10,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
+use crate::chain_invert::ChainInverseStream;
 use crate::{guard, slice, to_py, Model};
 
 fn parse_output(output: &str) -> Result<Output, PreisachError> {
@@ -300,35 +301,62 @@ fn compensator_for(
 fn run_loop<'py>(
     py: Python<'py>,
     model: Option<PyRef<'py, Model>>,
-    mut chain: PyRefMut<'py, Chain>,
+    chain: PyRefMut<'py, Chain>,
     reference: PyReadonlyArray1<'py, f64>,
     method: &str,
     lookahead: Option<usize>,
 ) -> PyResult<Bound<'py, PyDict>> {
     guard(|| {
-        let r = slice("reference", &reference)?;
-        let (mut comp, preview) = compensator_for(model.as_deref(), method, lookahead).map_err(to_py)?;
-        let plant = chain.stage().map_err(|e| PyValueError::new_err(format!("stage: {e}")))?;
-        let out = py.detach(|| run_loop_preview(&mut comp, plant, r, preview)).map_err(to_py)?;
-        let d = PyDict::new(py);
-        d.set_item("u", out.u.into_pyarray(py))?;
-        d.set_item("y", out.y.into_pyarray(py))?;
-        d.set_item("error", out.error.into_pyarray(py))?;
-        let t = out.timing;
-        d.set_item("mean_ns", t.mean_ns)?;
-        d.set_item("p99_ns", t.p99_ns)?;
-        d.set_item("max_ns", t.max_ns)?;
-        d.set_item("misses", t.misses)?;
-        d.set_item("budget_ns", t.budget_ns)?;
-        d.set_item("samples", t.samples)?;
-        d.set_item("preview", preview)?;
-        Ok(d)
+        let (comp, preview) = compensator_for(model.as_deref(), method, lookahead).map_err(to_py)?;
+        loop_dict(py, comp, preview, chain, &reference)
     })
+}
+
+/// [`run_loop`] with the chain inverse as the compensator (a copy of `inverse`, reset;
+/// the reference is fed ahead by its latency).
+#[pyfunction]
+fn run_loop_chain<'py>(
+    py: Python<'py>,
+    inverse: PyRef<'py, ChainInverseStream>,
+    chain: PyRefMut<'py, Chain>,
+    reference: PyReadonlyArray1<'py, f64>,
+) -> PyResult<Bound<'py, PyDict>> {
+    guard(|| {
+        let comp = inverse.inner.clone();
+        let preview = comp.latency();
+        loop_dict(py, Box::new(comp), preview, chain, &reference)
+    })
+}
+
+fn loop_dict<'py>(
+    py: Python<'py>,
+    mut comp: Box<dyn Compensator + Send>,
+    preview: usize,
+    mut chain: PyRefMut<'py, Chain>,
+    reference: &PyReadonlyArray1<'py, f64>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let r = slice("reference", reference)?;
+    let plant = chain.stage().map_err(|e| PyValueError::new_err(format!("stage: {e}")))?;
+    let out = py.detach(|| run_loop_preview(&mut comp, plant, r, preview)).map_err(to_py)?;
+    let d = PyDict::new(py);
+    d.set_item("u", out.u.into_pyarray(py))?;
+    d.set_item("y", out.y.into_pyarray(py))?;
+    d.set_item("error", out.error.into_pyarray(py))?;
+    let t = out.timing;
+    d.set_item("mean_ns", t.mean_ns)?;
+    d.set_item("p99_ns", t.p99_ns)?;
+    d.set_item("max_ns", t.max_ns)?;
+    d.set_item("misses", t.misses)?;
+    d.set_item("budget_ns", t.budget_ns)?;
+    d.set_item("samples", t.samples)?;
+    d.set_item("preview", preview)?;
+    Ok(d)
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Chain>()?;
     m.add_function(wrap_pyfunction!(run_loop, m)?)?;
+    m.add_function(wrap_pyfunction!(run_loop_chain, m)?)?;
     m.add_function(wrap_pyfunction!(sample_period, m)?)?;
     Ok(())
 }

@@ -252,6 +252,11 @@ impl Filter {
         Filter::of_sections(&sections, dt, d)
     }
 
+    /// Sections in series.
+    pub fn of(sections: &[Section], dt: f64, d: Discretization) -> Self {
+        Filter::of_sections(sections, dt, d)
+    }
+
     fn of_sections(sections: &[Section], dt: f64, d: Discretization) -> Self {
         let mut poles = Vec::new();
         let mut spans = Vec::with_capacity(sections.len());
@@ -309,6 +314,33 @@ impl Filter {
     /// Back to rest: the next sample settles the filter.
     pub fn reset(&mut self) {
         self.settled = false;
+    }
+
+    /// The state as numbers: settled (0 or 1), the poles' states (re, im), the
+    /// sections' previous inputs.
+    pub fn state(&self) -> Vec<f64> {
+        let mut s = vec![f64::from(u8::from(self.settled))];
+        s.extend(self.z.iter().flat_map(|z| [z.re, z.im]));
+        s.extend_from_slice(&self.prev);
+        s
+    }
+
+    /// Restore [`Filter::state`] of a filter of the same sections; on error unchanged.
+    pub fn set_state(&mut self, s: &[f64]) -> Result<()> {
+        let (np, ns) = (self.z.len(), self.prev.len());
+        if s.len() != 1 + 2 * np + ns || !(s[0] == 0.0 || s[0] == 1.0) {
+            return Err(PreisachError::invalid(
+                "state",
+                format!("a filter state of {} numbers (settled 0/1 first) expected, got {}", 1 + 2 * np + ns, s.len()),
+            ));
+        }
+        crate::error::check_finite("state", s)?;
+        self.settled = s[0] == 1.0;
+        for (k, z) in self.z.iter_mut().enumerate() {
+            *z = C::new(s[1 + 2 * k], s[2 + 2 * k]);
+        }
+        self.prev.copy_from_slice(&s[1 + 2 * np..]);
+        Ok(())
     }
 
     /// `y = L x` over a record, starting at rest with `x[0]` (the sections fused in one
@@ -418,6 +450,31 @@ impl DelayLine {
     pub fn reset(&mut self) {
         self.head = 0;
         self.settled = false;
+    }
+
+    /// The state as numbers: settled (0 or 1), the head, the ring buffer.
+    pub fn state(&self) -> Vec<f64> {
+        let mut s = vec![f64::from(u8::from(self.settled)), self.head as f64];
+        s.extend_from_slice(&self.buf);
+        s
+    }
+
+    /// Restore [`DelayLine::state`] of a line of the same delay; on error unchanged.
+    pub fn set_state(&mut self, s: &[f64]) -> Result<()> {
+        let n = self.buf.len();
+        let ok =
+            s.len() == 2 + n && (s[0] == 0.0 || s[0] == 1.0) && s[1] >= 0.0 && s[1] < n as f64 && s[1].fract() == 0.0;
+        if !ok {
+            return Err(PreisachError::invalid(
+                "state",
+                format!("a delay-line state of {} numbers (settled 0/1, head < {n}, buffer) expected", 2 + n),
+            ));
+        }
+        crate::error::check_finite("state", s)?;
+        self.settled = s[0] == 1.0;
+        self.head = s[1] as usize;
+        self.buf.copy_from_slice(&s[2..]);
+        Ok(())
     }
 }
 

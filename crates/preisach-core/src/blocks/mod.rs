@@ -23,6 +23,7 @@ pub mod chain;
 pub mod creep;
 pub mod drift;
 pub mod hysteresis;
+pub mod inverse;
 pub mod lti;
 pub mod presets;
 pub mod rate;
