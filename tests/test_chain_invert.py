@@ -8,6 +8,7 @@ reachable range, well below the inverse's bandwidth.
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -132,6 +133,26 @@ def test_nan_in_the_reference_is_a_value_error_naming_the_index():
         inv.process(r)
     with pytest.raises(ValueError, match="r: must be finite"):
         inv.step(float("inf"))
+
+
+def test_references_beyond_the_reachable_output_are_clipped_counted_and_warned():
+    """Oracle: the reachable output of a chain whose linear part has static gain 1 is the
+    model's output at the ends of its range (``predict`` at ``u_range``)."""
+    rng = np.random.default_rng(5)
+    model = true_hysteresis(rng, n_h=20)
+    chain = Chain(model, {"delay": {"delay_s": 1e-3}})
+    lo, hi = model.u_range
+    y_hi = float(model.predict(np.array([lo, hi]))[-1])
+    r = np.full(400, model.offset)
+    r[250:300] = y_hi + 1.0  # 50 samples above the top
+    with pytest.warns(preisach.PreisachWarning, match=r"^50 of 400 reference samples .* clipped"):
+        u, info = chain.invert(r, FS, return_info=True)
+    assert info.saturated == 50
+    assert np.all(u >= lo) and np.all(u <= hi)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _, info = chain.invert(np.full(400, model.offset), FS, return_info=True)
+    assert info.saturated == 0
 
 
 def _identified_block(rng):
