@@ -95,6 +95,39 @@ def test_bad_records_name_the_record_and_problem(delay_stage):
         diagnose(tr, [], progress=False)
 
 
+def test_the_training_record_as_a_holdout_and_irregular_sampling_are_errors(delay_stage, tmp_path):
+    from preisach.io import write_csv
+
+    tr = _rec(delay_stage["train"])
+    ho = _rec(delay_stage["holdouts"][0])
+    with pytest.raises(ValueError, match=r"holdout 2: the training record \(train\) given again as a holdout"):
+        diagnose(tr, [ho, {k: v.copy() for k, v in tr.items()}], progress=False)
+    with pytest.raises(ValueError, match=r"holdout 2: the same record as holdout 1"):
+        diagnose(tr, [ho, dict(ho)], progress=False)
+    # The same file given as training record and holdout: the error names the file.
+    p = tmp_path / "train.csv"
+    write_csv(p, tr)
+    with pytest.raises(ValueError, match=r"train\.csv: the training record .* given again"):
+        diagnose(str(p), [str(p)], progress=False)
+    # Repeats of one experiment (the same input, another output) are not duplicates.
+    from preisach.diagnose import _check_distinct, _load
+
+    _check_distinct(_load(tr, "train"), [_load(dict(tr, y=tr["y"] + 1e-3), "holdout 1")])
+    # Irregular sampling (a missing sample) names the record and the row.
+    t = ho["t"].copy()
+    t[100:] += t[1] - t[0]
+    with pytest.raises(ValueError, match=r"holdout 1: t.*irregular sampling at row 100"):
+        diagnose(tr, [dict(ho, t=t)], progress=False)
+    t = tr["t"].copy()
+    t[7] = t[6]
+    with pytest.raises(ValueError, match=r"train: t.*increase strictly \(row 7"):
+        diagnose(dict(tr, t=t), [ho], progress=False)
+    q = tmp_path / "gap.csv"
+    write_csv(q, dict(ho, t=np.delete(ho["t"], 50), u=np.delete(ho["u"], 50), y=np.delete(ho["y"], 50)))
+    with pytest.raises(ValueError, match=r"gap\.csv: t.*irregular sampling at row 50"):
+        diagnose(tr, [str(q)], progress=False)
+
+
 def test_delay_found_with_parameters_and_cli_outputs(delay_stage, tmp_path):
     st = delay_stage
     from preisach.io import write_csv

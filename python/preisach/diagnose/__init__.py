@@ -80,6 +80,24 @@ def _load(x: Any, name: str) -> Record:
     return Record(name, t, u, y, dt)
 
 
+def _same(a: Record, b: Record) -> bool:
+    """The same record: the same input and output samples (a copy of one file)."""
+    return a.u.size == b.u.size and bool(np.array_equal(a.u, b.u) and np.array_equal(a.y, b.y))
+
+
+def _check_distinct(tr: Record, hos: list[Record]) -> None:
+    """A holdout that is the training record again (or another holdout again) scores a
+    chain on samples it was fitted on, or counts one record twice: an error naming it.
+    (Repeated records of one experiment differ in their output and are welcome.)"""
+    for i, h in enumerate(hos):
+        if _same(h, tr):
+            raise ValueError(f"{h.name}: the training record ({tr.name}) given again as a holdout "
+                             f"(a holdout must be a record not used to fit)")
+        for g in hos[:i]:
+            if _same(h, g):
+                raise ValueError(f"{h.name}: the same record as {g.name} (give each holdout once)")
+
+
 def _refittable(b: Union[PreisachModel, Chain]) -> Optional[tuple[PreisachModel, dict[str, dict[str, Any]]]]:
     """A baseline's model and effects when it is an identified model followed by effects
     the search knows (else None: it can only be the "before")."""
@@ -179,6 +197,7 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
         raise ValueError(f"candidates: unknown effect(s) {', '.join(unknown)}")
     tr = _load(train, "train")
     hos = [_load(h, f"holdout {i + 1}") for i, h in enumerate(holdouts)]
+    _check_distinct(tr, hos)
     if _reversals(tr.u) < 2:
         raise ValueError(f"{tr.name}: the input has no reversals (a monotone input cannot identify hysteresis)")
     say(f"baseline fit on {tr.name} ({tr.u.size} samples, n_h={n_h})")
