@@ -30,9 +30,10 @@ import numpy as np
 
 from preisach.chain import Chain, load, sample_period
 from preisach.diagnose.effects import CANDIDATES, FitState, Record, export_state, rate_branch, rmse
+from preisach.diagnose.ranges import CREEP_TAU_MIN, ends_at_bound
 from preisach.diagnose.report import GapReport, evidence_text
-from preisach.diagnose.search import CREEP_TAU_MIN, Effects, Fitter, Trials, calibrate_slow
-from preisach.diagnose.where import localize, noise_floor, signatures
+from preisach.diagnose.search import Effects, Fitter, Trials, calibrate_slow
+from preisach.diagnose.where import localize, noise_floor, repeatability_floor, signatures
 from preisach.model import PreisachModel, PreisachWarning
 
 __all__ = ["diagnose", "GapReport", "run_cli", "CANDIDATES"]
@@ -292,6 +293,16 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
     ref_score = score(ref)
     say(f"reference (interpolated) holdout RMSE {ref_score:.4g} (baseline {hold_before:.4g})")
 
+    # What a finer hysteresis alone achieves (no effect added): an effect is detected only
+    # when its chain beats it as well as the interpolated one.
+    nh2 = min(2 * n_h, max(n_h, _reversals(tr.u) // 2), 120)
+    hyst_alone = ref_score
+    if nh2 > n_h:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", PreisachWarning)
+            hyst_alone = min(ref_score, score(fitter.state(cur_eff, n_h=nh2)))
+        say(f"finer hysteresis alone (n_h={nh2}): holdout RMSE {hyst_alone:.4g}")
+
     # Noise floor and where.
     floors = [noise_floor(r.y - ref.predict(r)) for r in recs]
     floor = float(np.median(floors))
@@ -302,7 +313,13 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
     for r in recs:
         h = ref.predict(r)
         sig[r.name] = signatures(r.t, r.u, h, r.y - h, r.dt)
-    say(f"where: noise floor {floor:.3g}, residual localized on {len(recs)} records")
+    # The floor an effect must beat: the noise, or the difference between repeated records
+    # where there are any (what no chain fitted on one record can come below).
+    rep_floor = repeatability_floor([(r.u, r.y) for r in recs])
+    floor_acc = max(floor, rep_floor or 0.0)
+    say(f"where: noise floor {floor:.3g}, repeatability floor "
+        f"{'(no repeated records)' if rep_floor is None else f'{rep_floor:.3g}'}, "
+        f"residual localized on {len(recs)} records")
 
     min_delay = 2.0 * min(r.dt for r in recs)
 
@@ -334,8 +351,8 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
     accepted: list[str] = []
     dyn = [c for c in candidates if c in CANDIDATES and c not in base_effects]
     for rnd in range(3):
-        if cur_score <= 1.2 * floor:
-            say("residual at the noise floor; stopping")
+        if cur_score <= 1.2 * floor_acc:
+            say("residual at the noise (or repeatability) floor; stopping")
             break
         todo = [c for c in dyn if c not in accepted]
         if rnd >= 2:
@@ -392,8 +409,10 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
             if gain < min_shrink and not (strong and gain >= 0.25 * min_shrink):
                 continue
             why = None
-            if cur_score - sc < 0.5 * floor:
-                why = "improvement below half the noise floor"
+            if cur_score - sc < 0.5 * floor_acc:
+                why = "improvement below half the noise (or repeatability) floor"
+            elif sc >= hyst_alone:
+                why = "no better than a finer hysteresis alone"
             elif tried[c]["train_gain"] <= 0:
                 why = "it does not fit the training record better"
             elif rnd > 0 and not strong and np.any(parts > cur_parts * 1.05 + 1e-12) \
@@ -403,6 +422,8 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
                 why = "worsens part of a holdout"
             elif trivial(c, st.effects[c]):
                 why = "trivial parameters"
+            elif ends_at_bound(c, st.effects[c], fitter.ranges):
+                why = "at its search bound: " + "; ".join(ends_at_bound(c, st.effects[c], fitter.ranges))
             if why is None:
                 passing.append((not strong, sc, c))
             else:
@@ -414,7 +435,8 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
         accepted.append(best)
         cur, cur_score, cur_parts = results[best][0], results[best][1], results[best][2]
         for x in cur.effects:
-            if x not in accepted and x not in base_effects and not trivial(x, cur.effects[x]):
+            if x not in accepted and x not in base_effects and not trivial(x, cur.effects[x]) \
+                    and not ends_at_bound(x, cur.effects[x], fitter.ranges):
                 # Fitted with it as a pair (a mode whose ringing needed a delay).
                 accepted.append(x)
                 tried[x] = dict(tried[best], score=tried.get(x, {}).get("score", tried[best]["score"]))
@@ -436,7 +458,6 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
     # The chain found, polished and refitted on the finer average; the discretization
     # check (a finer grid with the effects found) runs beside it, on the chain before the
     # refit, and is redone on the refitted chain only when it passes.
-    nh2 = min(2 * n_h, max(n_h, _reversals(tr.u) // 2), 120)
     disc = "discretization" in candidates and nh2 > n_h
 
     def finer(st0: FitState) -> tuple[FitState, float, np.ndarray, float]:
@@ -469,11 +490,11 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
             say(f"+ discretization (n_h={nh2}) holdout RMSE {sc:.4g} (without: {pre_score:.4g}) ({el:.1f} s)")
             g = (pre_score - sc) / pre_score if pre_score > 0 else 0.0
             why = None
-            if g >= min_shrink and pre_score - sc < 0.5 * floor:
-                why = "improvement below half the noise floor"
+            if g >= min_shrink and pre_score - sc < 0.5 * floor_acc:
+                why = "improvement below half the noise (or repeatability) floor"
             elif g >= min_shrink and np.any(parts > pre_parts * 1.05 + 1e-12):
                 why = "worsens part of a holdout"
-            elif g >= min_shrink and pre_score > 1.2 * floor and cur_score < pre_score:
+            elif g >= min_shrink and pre_score > 1.2 * floor_acc and cur_score < pre_score:
                 # It passed on the chain before the refit: the same on the refitted chain.
                 st, sc, parts, _ = finer(cur)
                 g = (cur_score - sc) / cur_score if cur_score > 0 else 0.0
@@ -483,22 +504,26 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
                                        "round": len(accepted) + 1, "n_h": nh2}
             if why is not None:
                 tried["discretization"]["refused"] = why
-            elif g >= min_shrink and cur_score > 1.2 * floor:
+            elif g >= min_shrink and cur_score > 1.2 * floor_acc:
                 accepted.append("discretization")
                 cur, cur_score = st, sc
 
     # The saved chain's slow effects are calibrated on every record (the further records
     # the user checks it on come later still).
-    final = export_state(calibrate_slow(cur, [(r, slice(None)) for r in recs]))
+    cal = calibrate_slow(cur, [(r, slice(None)) for r in recs])
+    final = export_state(cal)
     aug = Chain(final.model, final.effects)
     aug.sample_rate_hz = 1.0 / tr.dt  # the training record's: for per-sample runs (run_loop)
     timing = final.effects.get("delay", {}).get("delay_s", 0.0) if "delay" not in accepted else 0.0
     effects_out = []
     for c in accepted + sorted((c for c in tried if c not in accepted), key=lambda c: -tried[c]["score"]):
         d = tried[c]
+        at_bound: list[str] = []
         if c == "discretization":
             params: dict[str, Any] = {"n_h_suggested": d["n_h"]}
         else:
+            internal = cal if c in accepted and c in cal.effects else d["state"]
+            at_bound = ends_at_bound(c, internal.effects[c], fitter.ranges)
             # A detected effect's parameters are those of the augmented chain (refitted
             # after it was accepted); a refused one's those of its own candidate fit.
             src = final if c in accepted and c in final.effects else export_state(d["state"])
@@ -509,13 +534,14 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
             "params": params, "rmse_before": float(hold_before), "rmse_after": float(d["rmse_after"]),
             "shrink": float(1 - d["rmse_after"] / hold_before) if hold_before > 0 else 0.0,
             "rmse_current": float(d["rmse_current"]), "shrink_vs_current": float(d["score"]), "round": d["round"],
-            "refused": d.get("refused"),
+            "refused": d.get("refused"), "at_bound": at_bound,
         })
     report = GapReport(
         dominant_effect=accepted[0] if accepted else "none",
         noise_floor=floor,
         baseline={"n_h": n_h, "rmse": base_rmse, "holdout_rmse": hold_before,
-                  "reference_interpolated_holdout_rmse": ref_score,
+                  "reference_interpolated_holdout_rmse": ref_score, "reference_finer_holdout_rmse": hyst_alone,
+                  "repeatability_floor": rep_floor,
                   "effects": list(base_effects), **({"given": given} if given is not None else {})},
         where=where,
         split={"fit": f"{tr.name} (candidates: averages of {sstride} samples, {fitter.y.size} values; "
@@ -539,6 +565,7 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
                    "shrink": float(1 - cur_score / hold_before) if hold_before > 0 else 0.0,
                    "timing_s": float(timing)},
         seconds=time.perf_counter() - t_start,
+        search_ranges={n: {k: [b.lo, b.hi] for k, b in r.items()} for n, r in fitter.ranges.items()},
         chain=aug, baseline_model=base_model, records=recs, base_residuals=base_res,
     )
     say(f"done in {report.seconds:.1f} s: dominant effect {report.dominant_effect}")
