@@ -631,3 +631,53 @@ def test_a_delay_only_the_holdouts_carry_on_the_rig():
         t0 = float(r["t"][-1]) + 1.0
     rep = diagnose(recs[0], recs[1:], progress=False)
     _check_holdout_delay(rep, 1.4e-3)
+
+
+# ----------------------------------------------------------------- unrecorded history
+def _check_initial_state(rep, dominant=True):
+    found = [(e["name"], e["shrink_vs_current"], e["refused"]) for e in rep.effects]
+    assert rep.dominant_effect == "initial_state" or not dominant, found
+    e = next(e for e in rep.effects if e["name"] == "initial_state")
+    assert e["detected"] and set(e["params"]["record_extrema"]) == {"holdout 1", "holdout 2"}
+    ex = e["params"]["extrema"]
+    assert 1 <= len(ex) <= 2 and all(np.isfinite(ex))
+    return e
+
+
+def test_records_after_unrecorded_history_have_an_initial_state():
+    """Independent stage, no effect: each holdout starts mid-range after excursions to
+    90 and 10 (then 60) that the record does not show; the training record starts at
+    rest at the bottom."""
+    fs = 20e3
+    rng = np.random.default_rng(61)
+    hm = bv.true_hysteresis(rng)
+    recs, t0 = [], 0.0
+    for kind, hist in (("train", []), ("sine", [90.0, 10.0, 60.0]), ("triangle", [95.0, 5.0, 70.0])):
+        u = bv.waveform(kind, fs, 1.0, rng)
+        if kind == "sine":
+            u = 50.0 + 0.5 * (u - 50.0)  # mid-range: the history is wiped out only in part
+        pre = np.concatenate([np.linspace(a, b, 200) for a, b in zip([0.0] + hist, hist + [float(u[0])])])
+        t = t0 + np.arange(u.size) / fs
+        y = bv.simulate(hm, {}, t0 + np.arange(pre.size + u.size) / fs, np.concatenate([pre, u]), 0.003, rng)
+        recs.append({"t": t, "u": u, "y": y[pre.size:]})
+        t0 = t[-1] + 1.0
+    rep = diagnose(recs[0], recs[1:], progress=False)
+    _check_initial_state(rep)
+
+
+def test_records_after_unrecorded_history_on_the_rig():
+    import rig
+
+    fs = 10e3
+    rng = np.random.default_rng(13)
+    stage = rig.draw_rig(rng, (), fs)
+    recs, t0 = [], 0.0
+    for u, hist in ((rig.wf_identification(fs, 8.0, 24), ()), (rig.wf_sine(fs, 20.0, 1.0, amp=2.0), (9.5, 0.5, 7.0)),
+                    (rig.wf_sine(fs, 12.0, 1.0, amp=2.5), (9.0, 1.0))):
+        r = stage.record(u, fs, t0, history=hist, rng=rng)
+        recs.append(_rec(r))
+        t0 = float(r["t"][-1]) + 1.0
+    rep = diagnose(recs[0], recs[1:], progress=False)
+    # (Found as well, and dominant here: a low-pass standing for the rig's capture lag of
+    # about two samples and a half, the ADC latency and the anti-aliasing filter.)
+    _check_initial_state(rep, dominant=False)

@@ -9,14 +9,13 @@ scored sample was used to fit the parameter it is scored with.
 """
 from __future__ import annotations
 
-import math
 from typing import Any, Callable
 
 import numpy as np
 from numpy.typing import NDArray
 
 from preisach.diagnose.effects import FitState, Record, _grid_then_parabola
-from preisach.diagnose.ranges import Bound
+from preisach.diagnose.ranges import Bound, delay_grid
 
 Errors = Callable[[FitState], list[NDArray[np.float64]]]
 
@@ -31,15 +30,13 @@ def _with_delay(st: FitState, extra: float) -> FitState:
 
 def _fit_delay(st: FitState, parts: list[tuple[Record, slice]], bound: Bound) -> float:
     """The added delay that fits the parts best (masses and the other effects fixed):
-    a grid of steps of at most 1.5x from a sample to the bound, then parabolic steps."""
+    a grid (``delay_grid``) up to the bound, then parabolic steps."""
     d0 = float(st.effects.get("delay", {}).get("delay_s", 0.0))
     hi = max(bound.hi - d0, 0.0)
     dt = min(r.dt for r, _ in parts)
     if hi <= dt:
         return 0.0
-    lo = min(dt, hi / 10)
-    n = max(11, int(math.ceil(math.log(hi / lo) / math.log(1.5))) + 1)
-    grid = np.concatenate([[0.0], np.geomspace(lo, hi, n)])
+    grid = delay_grid(dt, hi)
 
     def sse(d: float) -> float:
         s = _with_delay(st, max(d, 0.0))

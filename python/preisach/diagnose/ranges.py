@@ -100,6 +100,15 @@ def search_ranges(u: NDArray[np.float64], dt_record: float, duration: float, dt_
     }
 
 
+def delay_grid(dt: float, hi: float) -> NDArray[np.float64]:
+    """Trial delays for a grid search: 0, then steps of at most 1.5x from about a sample
+    (``dt``, at least 10 us, at most a tenth of ``hi``) to ``hi`` (a delay is well
+    resolved near its minimum)."""
+    lo = min(max(dt, 1e-5), hi / 10)
+    n = max(11, int(math.ceil(math.log(hi / lo) / math.log(1.5))) + 1)
+    return np.concatenate([[0.0], np.geomspace(lo, hi, n)])
+
+
 def ends_at_bound(name: str, p: dict[str, Any], ranges: Ranges) -> list[str]:
     """The parameters of effect ``name`` (internal form) that ended at a search bound,
     as ``"key=value (lo|hi bound)"`` texts; empty when none did."""

@@ -38,7 +38,7 @@ from preisach.diagnose.effects import (
     rate_branch,
     rmse,
 )
-from preisach.diagnose.ranges import CREEP_AMP_MAX, CREEP_TAU_MIN, Ranges, search_ranges
+from preisach.diagnose.ranges import CREEP_AMP_MAX, CREEP_TAU_MIN, Ranges, delay_grid, search_ranges
 from preisach.model import PreisachModel
 
 Effects = dict[str, dict[str, Any]]
@@ -388,11 +388,7 @@ class Fitter:
             # them): only a narrow search, the dynamics re-balanced below.
             eff, _ = self.line(eff, "delay", "delay_s", 3.0)
         elif name == "delay":
-            hi = self.ranges["delay"]["delay_s"].hi
-            lo = min(max(r.dt / 2, 1e-5), hi / 10)
-            # Steps of at most 1.5x (a delay is well resolved near its minimum).
-            n = max(11, int(math.ceil(math.log(hi / lo) / math.log(1.5))) + 1)
-            grid = np.concatenate([[0.0], np.geomspace(lo, hi, n)])
+            grid = delay_grid(r.dt / 2, self.ranges["delay"]["delay_s"].hi)
             f, fm = self.along(lambda d: dict(eff, delay={"delay_s": d}))
             d, _ = _grid_then_parabola(f, grid, fmany=fm)
             eff["delay"] = {"delay_s": float(max(d, 0.0))}
