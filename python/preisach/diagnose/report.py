@@ -130,7 +130,8 @@ class GapReport:
             lines.append(f" {mark} {e['name']:14s} shrink {100 * sh:6.1f} %  "
                          f"({cur:.4g} -> {e['rmse_after']:.4g})  {json.dumps(_clean(e['params']))}"
                          + (f"  [refused: {e['refused']}]" if e.get("refused") else ""))
-            for b in e.get("at_bound") or []:
+            # (A candidate that did not help is not worth a line: its JSON lists its bounds.)
+            for b in (e.get("at_bound") or []) if e["detected"] or sh > 0 else []:
                 lines.append(f"   ! {e['name']}: {b} ended at its search bound: the effect lies outside the range "
                              f"searched or is no such effect (not called detected on it)")
         a = self.augmented
