@@ -681,3 +681,13 @@ def test_records_after_unrecorded_history_on_the_rig():
     # (Found as well, and dominant here: a low-pass standing for the rig's capture lag of
     # about two samples and a half, the ADC latency and the anti-aliasing filter.)
     _check_initial_state(rep, dominant=False)
+
+
+def test_swept_is_where_the_input_first_reached_both_ends():
+    from preisach.diagnose.initial import swept
+
+    t = np.arange(10_000) / 10e3
+    tri = 5.0 - 4.0 * np.abs(2 * ((t * 7.0) % 1.0) - 1)  # peaks at 1/14 s, every 1/7 s
+    tri[9000] += 1e-12  # a later peak higher by rounding only
+    assert swept(tri) == int(round(10e3 / 14)) + 1
+    assert swept(np.r_[np.zeros(5), np.linspace(0, 3, 10), np.full(20, 1.0)]) == 15

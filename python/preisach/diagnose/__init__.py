@@ -32,7 +32,7 @@ import numpy as np
 from preisach.chain import Chain, load, sample_period
 from preisach.diagnose.crossfit import consistent, holdout_delay
 from preisach.diagnose.effects import CANDIDATES, FitState, Record, export_state, rate_branch, rmse
-from preisach.diagnose.initial import estimate, predict_from
+from preisach.diagnose.initial import concentrated, estimate, fitted_part, predict_from
 from preisach.diagnose.ranges import CREEP_TAU_MIN, ends_at_bound
 from preisach.diagnose.report import GapReport, evidence_text
 from preisach.diagnose.search import Effects, Fitter, Trials, calibrate_slow
@@ -554,7 +554,12 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
     # on the part before its input swept the range, the chain fixed.
     if "initial_state" in candidates and cur_score > 1.2 * floor_acc:
         est = {h.name: estimate(cur, h) for h in hos}
-        errs = [e + predict_from(cur, h, est[h.name][0]) - cur.predict(h) for e, h in zip(holdout_errors(cur), hos)]
+        errs, own = [], []
+        for e, ho in zip(holdout_errors(cur), hos):
+            k = fitted_part(ho)
+            own.append(concentrated(est[ho.name][1], est[ho.name][2], rmse(e[k:]) if k < e.size else 0.0))
+            # Only a staircase whose part's error is its own is kept.
+            errs.append(e + predict_from(cur, ho, est[ho.name][0]) - cur.predict(ho) if own[-1] else e)
         sc = rmse(np.concatenate(errs))
         g = (cur_score - sc) / cur_score if cur_score > 0 else 0.0
         say(f"initial state of each holdout: holdout RMSE {sc:.4g} (without: {cur_score:.4g})")

@@ -6,7 +6,8 @@ relay at -1: the output carries an offset that fades once the input has swept th
 alternating extrema in input units (the hysteresis block's ``initial_extrema``: the
 input rose to ``M``, fell to ``m``, then went to the first sample), with the chain
 fixed, on the part of the record before the input has swept its range (the only part
-the memory at the start reaches).
+the memory at the start reaches). Two numbers fitted on the samples they are scored on:
+the staircase counts only where that part's error is its own (``concentrated``).
 """
 from __future__ import annotations
 
@@ -21,8 +22,12 @@ from preisach.diagnose.effects import FitState, Record, rmse
 
 def swept(u: NDArray[np.float64]) -> int:
     """The sample after which the input has reached both its lowest and its highest
-    value: beyond it the starting memory is wiped out."""
-    return int(max(np.argmin(u), np.argmax(u))) + 1
+    value (within 0.1 % of its span: a periodic input reaches them every period, in
+    values equal to rounding): beyond it the starting memory is wiped out."""
+    tol = 1e-3 * float(np.ptp(u))
+    lo = int(np.argmax(u <= np.min(u) + tol))
+    hi = int(np.argmax(u >= np.max(u) - tol))
+    return max(lo, hi) + 1
 
 
 def predict_from(st: FitState, rec: Record, extrema: Optional[list[float]]) -> NDArray[np.float64]:
@@ -35,11 +40,23 @@ def predict_from(st: FitState, rec: Record, extrema: Optional[list[float]]) -> N
     return y + st.offsets.get(rec.name, 0.0) if st.offsets else y
 
 
+def fitted_part(rec: Record) -> int:
+    """The samples the starting staircase is fitted on: the part before the sweep."""
+    return max(swept(rec.u), 16)
+
+
+def concentrated(before: float, after: float, rest: float) -> bool:
+    """The part before the sweep carries an error of its own (at least twice the rest
+    of the record's RMSE ``rest``) that the staircase halves at least: what a memory
+    at the start leaves, unlike an effect that errs all along the record."""
+    return before >= 2.0 * rest and after <= 0.5 * before
+
+
 def estimate(st: FitState, rec: Record, levels: int = 9) -> tuple[list[float], float, float]:
     """The starting staircase of ``rec`` (``[M, m]``, ``[M]`` or none) that fits the
-    part before the sweep best, on a grid of the model's range; returns it with the
-    RMSE of that part before and after."""
-    k = max(swept(rec.u), 16)
+    part before the sweep best (``fitted_part``), on a grid of the model's range;
+    returns it with the RMSE of that part before and after."""
+    k = fitted_part(rec)
     part = Record(rec.name, rec.t[:k], rec.u[:k], rec.y[:k], rec.dt)
     lo, hi = st.model.u_range
     grid = np.linspace(lo, hi, levels)
