@@ -719,9 +719,10 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
     x, t, y = averaged(full_x), averaged(times), averaged([rec.y for rec, _ in data])
     drift = "drift" in eff0
     base = [averaged([xf * tf for xf, tf in zip(full_x, times)]), t] if drift else []
-    if drift:
+    if drift and not creep:
         # Each record after the first (the training record: its offset is the model's)
-        # has its own output offset (a session's sensor offset).
+        # has its own output offset (a session's sensor offset). Not beside creep, whose
+        # restart with every record is what tells it from a drift across records.
         base += [averaged([np.full(r.y.size, float(i == j)) for j, (r, _) in enumerate(data)])
                  for i in range(1, len(data))]
     target = y - x - (eff0["drift"]["offset"] if drift else 0.0)
@@ -777,7 +778,8 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
     if drift:
         eff["drift"] = {"gain_per_s": float(coef[0]), "offset": float(eff0["drift"]["offset"]),
                         "offset_per_s": float(coef[1])}
-        offsets = {data[0][0].name: 0.0} | {r.name: float(c) for (r, _), c in zip(data[1:], coef[2:len(data) + 1])}
+        if not creep:
+            offsets = {data[0][0].name: 0.0} | {r.name: float(c) for (r, _), c in zip(data[1:], coef[2:len(data) + 1])}
     if tau is not None:
         c = min(max(float(coef[-1]), 0.0), CREEP_AMP_MAX)
         eff["creep"] = {"taus_s": [float(tau)], "amplitudes": [c], "normalized": True}
