@@ -326,15 +326,6 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
 
     min_delay = 2.0 * min(r.dt for r in recs)
 
-    def sessions(st: FitState) -> bool:
-        """A chain whose drift's per-record offsets (calibrated on every record) differ by
-        more than 1 % of the output's span and 3 noise floors: a session's sensor offset."""
-        if "drift" not in st.effects:
-            return False
-        st = calibrate_slow(st, [(r, slice(None)) for r in recs])
-        spread = float(np.ptp(list(st.offsets.values()))) if st.offsets else 0.0
-        return spread > max(0.01 * (float(np.ptp(tr.y)) or 1.0), 3 * floor)
-
     def trivial(name: str, p: dict[str, Any]) -> bool:
         """Parameters too small (or too large) to be a real effect of that kind."""
         if name == "delay":
@@ -348,8 +339,7 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
             return float(sum(p["amplitudes"])) < 0.003 or min(p["taus_s"]) < 0.99 * CREEP_TAU_MIN
         if name == "drift":
             y_span = float(np.ptp(tr.y)) or 1.0
-            slow = abs(p["gain_per_s"]) * t_span * y_span + abs(p["offset_per_s"]) * t_span
-            return slow < 3 * floor
+            return abs(p["gain_per_s"]) * t_span * y_span + abs(p["offset_per_s"]) * t_span < 3 * floor
         if name == "rate":
             # A rate-dependent loop worth the name changes the output by a visible part of
             # its span; a branch of a few 1e-4 of it corrects the timing of other effects.
@@ -426,15 +416,14 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
                 why = "improvement below half the noise (or repeatability) floor"
             elif sc >= hyst_alone:
                 why = "no better than a finer hysteresis alone"
-            elif tried[c]["train_gain"] <= 0 and not (c == "drift" and sessions(st)):
-                # (Sessions' offsets show only between records.)
+            elif tried[c]["train_gain"] <= 0:
                 why = "it does not fit the training record better"
             elif rnd > 0 and not strong and np.any(parts > cur_parts * 1.05 + 1e-12) \
                     and not (c in ("drift", "creep") and gain >= 2 * min_shrink):
                 # (A slow effect's parameters are calibrated on the holdouts' other halves,
                 # which moves error between the halves; a large gain counts for it.)
                 why = "worsens part of a holdout"
-            elif trivial(c, st.effects[c]) and not (c == "drift" and sessions(st)):
+            elif trivial(c, st.effects[c]):
                 why = "trivial parameters"
             elif ends_at_bound(c, st.effects[c], fitter.ranges):
                 why = "at its search bound: " + "; ".join(ends_at_bound(c, st.effects[c], fitter.ranges))
@@ -596,9 +585,6 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
             # after it was accepted); a refused one's those of its own candidate fit.
             src = final if c in accepted and c in final.effects else export_state(d["state"])
             params = {k: v for k, v in src.effects[c].items() if not k.startswith("_")}
-            if c == "drift" and internal.offsets:
-                # Each record's own output offset (a session's sensor offset), by record.
-                params["record_offsets"] = dict(internal.offsets)
         effects_out.append({
             "name": c, "detected": c in accepted, "score": float(d["score"]),
             "evidence": evidence_text(c, sig, tr.name, [h.name for h in hos], floor, d),

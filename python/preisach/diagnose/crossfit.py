@@ -25,7 +25,7 @@ def _with_delay(st: FitState, extra: float) -> FitState:
     eff = {k: dict(v) for k, v in st.effects.items()}
     d0 = float(eff.get("delay", {}).get("delay_s", 0.0))
     eff["delay"] = {"delay_s": d0 + extra}
-    return FitState(st.model, eff, st.train_rmse, dict(st.offsets))
+    return FitState(st.model, eff, st.train_rmse)
 
 
 def _fit_delay(st: FitState, parts: list[tuple[Record, slice]], bound: Bound) -> float:

@@ -32,18 +32,14 @@ class Record:
 
 @dataclass
 class FitState:
-    """A fitted chain: interpolated model plus effect parameters; ``offsets``: a drift's
-    per-record output offsets (a session's sensor offset), by record name, on top of the
-    chain's (not part of the saved chain: a further record has its own)."""
+    """A fitted chain: interpolated model plus effect parameters."""
 
     model: PreisachModel
     effects: dict[str, dict[str, Any]] = field(default_factory=dict)
     train_rmse: float = float("nan")
-    offsets: dict[str, float] = field(default_factory=dict)
 
     def predict(self, rec: Record) -> NDArray[np.float64]:
-        y: NDArray[np.float64] = Chain(self.model, self.effects).predict(rec.t, rec.u)
-        return y + self.offsets.get(rec.name, 0.0) if self.offsets else y
+        return Chain(self.model, self.effects).predict(rec.t, rec.u)
 
 
 def rate_branch(p: dict[str, Any], t: NDArray[np.float64], u: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -185,4 +181,4 @@ def export_state(st: FitState) -> FitState:
         if S < 0.95:
             cr["amplitudes"] = [c / (1 - S) for c in cr["amplitudes"]]
             model = PreisachModel(model.weights * (1 - S), model.u_range, model.offset * (1 - S), model.output)
-    return FitState(model, eff, st.train_rmse, dict(st.offsets))
+    return FitState(model, eff, st.train_rmse)

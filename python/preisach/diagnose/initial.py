@@ -37,7 +37,7 @@ def predict_from(st: FitState, rec: Record, extrema: Optional[list[float]]) -> N
     blocks = Chain(st.model, st.effects).blocks
     blocks[0] = dict(blocks[0], initial_extrema=[float(x) for x in extrema])
     y: NDArray[np.float64] = Chain.from_blocks(blocks).predict(rec.t, rec.u)
-    return y + st.offsets.get(rec.name, 0.0) if st.offsets else y
+    return y
 
 
 def fitted_part(rec: Record) -> int:

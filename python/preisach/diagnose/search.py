@@ -679,8 +679,7 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
     With ``x`` the chain's output without drift and creep (its masses fitted with the
     drift, so referred to time 0), and ``k = LP_tau[x] - x`` the creep element's response
     (at rest at each record's start; it commutes with the other linear blocks),
-    ``y - x ~ g t x + o'' t + o_r + c k`` is linear (``o_r``: each record's own output
-    offset after the first's, a session's sensor offset), solved for the creep's time constant on a
+    ``y - x ~ g t x + o'' t + c k`` is linear, solved for the creep's time constant on a
     grid (and its current one) by least squares on the given parts. Only what changes
     with time or restarts with the records is calibrated: the level and scale stay the
     training record's (recalibrating them would credit any effect with a free
@@ -719,12 +718,6 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
     x, t, y = averaged(full_x), averaged(times), averaged([rec.y for rec, _ in data])
     drift = "drift" in eff0
     base = [averaged([xf * tf for xf, tf in zip(full_x, times)]), t] if drift else []
-    if drift and not creep:
-        # Each record after the first (the training record: its offset is the model's)
-        # has its own output offset (a session's sensor offset). Not beside creep, whose
-        # restart with every record is what tells it from a drift across records.
-        base += [averaged([np.full(r.y.size, float(i == j)) for j, (r, _) in enumerate(data)])
-                 for i in range(1, len(data))]
     target = y - x - (eff0["drift"]["offset"] if drift else 0.0)
 
     def solve(extra: list[NDArray[np.float64]]) -> tuple[NDArray[np.float64], float]:
@@ -774,16 +767,13 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
     if not np.isfinite(coef).all():
         return st
     eff = {k: dict(v) for k, v in eff0.items()}
-    offsets: dict[str, float] = {}
     if drift:
         eff["drift"] = {"gain_per_s": float(coef[0]), "offset": float(eff0["drift"]["offset"]),
                         "offset_per_s": float(coef[1])}
-        if not creep:
-            offsets = {data[0][0].name: 0.0} | {r.name: float(c) for (r, _), c in zip(data[1:], coef[2:len(data) + 1])}
     if tau is not None:
         c = min(max(float(coef[-1]), 0.0), CREEP_AMP_MAX)
         eff["creep"] = {"taus_s": [float(tau)], "amplitudes": [c], "normalized": True}
-    return FitState(st.model, eff, st.train_rmse, offsets)
+    return FitState(st.model, eff, st.train_rmse)
 
 
 def _lp(x: NDArray[np.float64], tau: float, t: NDArray[np.float64]) -> NDArray[np.float64]:
