@@ -610,9 +610,11 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
                "score": [h.name for h in hos],
                **({"cross_fit": cross_fit} if cross_fit else {}),
                "parts": [f"{h.name} {half} half" for h in hos for half in ("first", "second")],
-               "note": "masses and effect parameters are fitted on the training record only (the slow "
-                       "effects' calibration across records excepted, see fit); every chain is scored on the "
-                       "holdouts, no sample with "
+               "note": "masses and effect parameters are fitted on the training record (the slow effects' "
+                       "calibration across records, a delay only the holdouts carry (see cross_fit: fitted on "
+                       "some holdouts, scored on the others) and each holdout's initial_state (fitted on the "
+                       "part of it before its input swept the range, the one exception to the next rule) "
+                       "excepted); every chain is scored on the holdouts, no sample with "
                        "parameters fitted on it. An effect is kept (stepwise) when it shrinks "
                        "the holdout RMSE by min_shrink and by more than half the noise floor, fits the training "
                        "record better, after the first effect worsens none of the parts "
