@@ -10,7 +10,8 @@
   ``vibration``, ``creep``, ``drift``, ``rate``, ``discretization``) is added to the
   chain and fitted jointly with the masses on the training record, then scored on the
   holdout records; effects are added greedily while each one shrinks the holdout RMSE
-  by at least ``min_shrink``; ``none`` when nothing does;
+  by at least ``min_shrink``; then a delay only the holdouts carry (cross-fitted on
+  them) and each holdout's ``initial_state``; ``none`` when nothing helps;
 - **how far** the gap shrinks: RMSE before (baseline) and after (augmented chain) on
   the holdouts, which were never used to fit anything.
 """
@@ -29,10 +30,13 @@ from typing import Any, Optional, Sequence, Union
 import numpy as np
 
 from preisach.chain import Chain, load, sample_period
+from preisach.diagnose.crossfit import consistent, holdout_delay
 from preisach.diagnose.effects import CANDIDATES, FitState, Record, export_state, rate_branch, rmse
+from preisach.diagnose.initial import concentrated, estimate, fitted_part, predict_from
+from preisach.diagnose.ranges import CREEP_TAU_MIN, ends_at_bound
 from preisach.diagnose.report import GapReport, evidence_text
-from preisach.diagnose.search import CREEP_TAU_MIN, Effects, Fitter, Trials, calibrate_slow
-from preisach.diagnose.where import localize, noise_floor, signatures
+from preisach.diagnose.search import Effects, Fitter, Trials, calibrate_slow
+from preisach.diagnose.where import localize, noise_floor, repeatability_floor, signatures
 from preisach.model import PreisachModel, PreisachWarning
 
 __all__ = ["diagnose", "GapReport", "run_cli", "CANDIDATES"]
@@ -80,6 +84,24 @@ def _load(x: Any, name: str) -> Record:
     return Record(name, t, u, y, dt)
 
 
+def _same(a: Record, b: Record) -> bool:
+    """The same record: the same input and output samples (a copy of one file)."""
+    return a.u.size == b.u.size and bool(np.array_equal(a.u, b.u) and np.array_equal(a.y, b.y))
+
+
+def _check_distinct(tr: Record, hos: list[Record]) -> None:
+    """A holdout that is the training record again (or another holdout again) scores a
+    chain on samples it was fitted on, or counts one record twice: an error naming it.
+    (Repeated records of one experiment differ in their output and are welcome.)"""
+    for i, h in enumerate(hos):
+        if _same(h, tr):
+            raise ValueError(f"{h.name}: the training record ({tr.name}) given again as a holdout "
+                             f"(a holdout must be a record not used to fit)")
+        for g in hos[:i]:
+            if _same(h, g):
+                raise ValueError(f"{h.name}: the same record as {g.name} (give each holdout once)")
+
+
 def _refittable(b: Union[PreisachModel, Chain]) -> Optional[tuple[PreisachModel, dict[str, dict[str, Any]]]]:
     """A baseline's model and effects when it is an identified model followed by effects
     the search knows (else None: it can only be the "before")."""
@@ -110,7 +132,7 @@ def _say(progress: bool, msg: str) -> None:
 
 def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
              baseline: Optional[Union[str, Path, Chain, PreisachModel]] = None,
-             candidates: Sequence[str] = CANDIDATES + ("discretization",), min_shrink: float = 0.10,
+             candidates: Sequence[str] = CANDIDATES + ("discretization", "initial_state"), min_shrink: float = 0.10,
              fit_rate_hz: float = 25e3, progress: bool = True, workers: Optional[int] = None,
              search_rate_hz: float = 12.5e3) -> GapReport:
     """Diagnose the gap between the baseline model and the measurements.
@@ -174,11 +196,12 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
         holdouts = [holdouts]  # type: ignore[list-item]
     if not holdouts:
         raise ValueError("holdouts: need at least one holdout record to score on")
-    unknown = [c for c in candidates if c not in CANDIDATES + ("discretization",)]
+    unknown = [c for c in candidates if c not in CANDIDATES + ("discretization", "initial_state")]
     if unknown:
         raise ValueError(f"candidates: unknown effect(s) {', '.join(unknown)}")
     tr = _load(train, "train")
     hos = [_load(h, f"holdout {i + 1}") for i, h in enumerate(holdouts)]
+    _check_distinct(tr, hos)
     if _reversals(tr.u) < 2:
         raise ValueError(f"{tr.name}: the input has no reversals (a monotone input cannot identify hysteresis)")
     say(f"baseline fit on {tr.name} ({tr.u.size} samples, n_h={n_h})")
@@ -273,6 +296,16 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
     ref_score = score(ref)
     say(f"reference (interpolated) holdout RMSE {ref_score:.4g} (baseline {hold_before:.4g})")
 
+    # What a finer hysteresis alone achieves (no effect added): an effect is detected only
+    # when its chain beats it as well as the interpolated one.
+    nh2 = min(2 * n_h, max(n_h, _reversals(tr.u) // 2), 120)
+    hyst_alone = ref_score
+    if nh2 > n_h:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", PreisachWarning)
+            hyst_alone = min(ref_score, score(fitter.state(cur_eff, n_h=nh2)))
+        say(f"finer hysteresis alone (n_h={nh2}): holdout RMSE {hyst_alone:.4g}")
+
     # Noise floor and where.
     floors = [noise_floor(r.y - ref.predict(r)) for r in recs]
     floor = float(np.median(floors))
@@ -283,7 +316,13 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
     for r in recs:
         h = ref.predict(r)
         sig[r.name] = signatures(r.t, r.u, h, r.y - h, r.dt)
-    say(f"where: noise floor {floor:.3g}, residual localized on {len(recs)} records")
+    # The floor an effect must beat: the noise, or the difference between repeated records
+    # where there are any (what no chain fitted on one record can come below).
+    rep_floor = repeatability_floor([(r.u, r.y) for r in recs])
+    floor_acc = max(floor, rep_floor or 0.0)
+    say(f"where: noise floor {floor:.3g}, repeatability floor "
+        f"{'(no repeated records)' if rep_floor is None else f'{rep_floor:.3g}'}, "
+        f"residual localized on {len(recs)} records")
 
     min_delay = 2.0 * min(r.dt for r in recs)
 
@@ -315,8 +354,8 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
     accepted: list[str] = []
     dyn = [c for c in candidates if c in CANDIDATES and c not in base_effects]
     for rnd in range(3):
-        if cur_score <= 1.2 * floor:
-            say("residual at the noise floor; stopping")
+        if cur_score <= 1.2 * floor_acc:
+            say("residual at the noise (or repeatability) floor; stopping")
             break
         todo = [c for c in dyn if c not in accepted]
         if rnd >= 2:
@@ -373,8 +412,10 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
             if gain < min_shrink and not (strong and gain >= 0.25 * min_shrink):
                 continue
             why = None
-            if cur_score - sc < 0.5 * floor:
-                why = "improvement below half the noise floor"
+            if cur_score - sc < 0.5 * floor_acc:
+                why = "improvement below half the noise (or repeatability) floor"
+            elif sc >= hyst_alone:
+                why = "no better than a finer hysteresis alone"
             elif tried[c]["train_gain"] <= 0:
                 why = "it does not fit the training record better"
             elif rnd > 0 and not strong and np.any(parts > cur_parts * 1.05 + 1e-12) \
@@ -384,6 +425,8 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
                 why = "worsens part of a holdout"
             elif trivial(c, st.effects[c]):
                 why = "trivial parameters"
+            elif ends_at_bound(c, st.effects[c], fitter.ranges):
+                why = "at its search bound: " + "; ".join(ends_at_bound(c, st.effects[c], fitter.ranges))
             if why is None:
                 passing.append((not strong, sc, c))
             else:
@@ -395,7 +438,8 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
         accepted.append(best)
         cur, cur_score, cur_parts = results[best][0], results[best][1], results[best][2]
         for x in cur.effects:
-            if x not in accepted and x not in base_effects and not trivial(x, cur.effects[x]):
+            if x not in accepted and x not in base_effects and not trivial(x, cur.effects[x]) \
+                    and not ends_at_bound(x, cur.effects[x], fitter.ranges):
                 # Fitted with it as a pair (a mode whose ringing needed a delay).
                 accepted.append(x)
                 tried[x] = dict(tried[best], score=tried.get(x, {}).get("score", tried[best]["score"]))
@@ -417,7 +461,6 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
     # The chain found, polished and refitted on the finer average; the discretization
     # check (a finer grid with the effects found) runs beside it, on the chain before the
     # refit, and is redone on the refitted chain only when it passes.
-    nh2 = min(2 * n_h, max(n_h, _reversals(tr.u) // 2), 120)
     disc = "discretization" in candidates and nh2 > n_h
 
     def finer(st0: FitState) -> tuple[FitState, float, np.ndarray, float]:
@@ -450,11 +493,11 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
             say(f"+ discretization (n_h={nh2}) holdout RMSE {sc:.4g} (without: {pre_score:.4g}) ({el:.1f} s)")
             g = (pre_score - sc) / pre_score if pre_score > 0 else 0.0
             why = None
-            if g >= min_shrink and pre_score - sc < 0.5 * floor:
-                why = "improvement below half the noise floor"
+            if g >= min_shrink and pre_score - sc < 0.5 * floor_acc:
+                why = "improvement below half the noise (or repeatability) floor"
             elif g >= min_shrink and np.any(parts > pre_parts * 1.05 + 1e-12):
                 why = "worsens part of a holdout"
-            elif g >= min_shrink and pre_score > 1.2 * floor and cur_score < pre_score:
+            elif g >= min_shrink and pre_score > 1.2 * floor_acc and cur_score < pre_score:
                 # It passed on the chain before the refit: the same on the refitted chain.
                 st, sc, parts, _ = finer(cur)
                 g = (cur_score - sc) / cur_score if cur_score > 0 else 0.0
@@ -464,22 +507,80 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
                                        "round": len(accepted) + 1, "n_h": nh2}
             if why is not None:
                 tried["discretization"]["refused"] = why
-            elif g >= min_shrink and cur_score > 1.2 * floor:
+            elif g >= min_shrink and cur_score > 1.2 * floor_acc:
                 accepted.append("discretization")
                 cur, cur_score = st, sc
 
+    # A delay only the holdouts carry (the loop reads another channel than the one the
+    # model was identified on): fitted on some holdouts, scored on the others.
+    cross_fit: dict[str, Any] = {}
+    if "delay" in candidates and "delay" not in accepted and cur_score > 1.2 * floor_acc:
+        xf = holdout_delay(cur, hos, holdout_errors, fitter.ranges["delay"]["delay_s"])
+        parts_x = [p for e, hv in zip(xf["errors"], halves) for p in (rmse(e[hv[0]]), rmse(e[hv[1]]))]
+        sc = rmse(np.concatenate(xf["errors"]))
+        g = (cur_score - sc) / cur_score if cur_score > 0 else 0.0
+        say(f"delay fitted on the holdouts (cross-fitted): holdout RMSE {sc:.4g} (without: {cur_score:.4g}); "
+            + ", ".join(f"{1e3 * f['added_s']:.3g} ms on {'+'.join(f['fit'])}" for f in xf["folds"]))
+        why = None
+        if g < min_shrink or cur_score - sc < 0.5 * floor_acc or sc >= hyst_alone:
+            why = "no gain on the holdouts cross-fitted"
+        elif not consistent(xf["folds"], min_delay):
+            why = "the holdouts disagree on the delay"
+        elif ends_at_bound("delay", xf["state"].effects["delay"], fitter.ranges):
+            why = "at its search bound: " + "; ".join(ends_at_bound("delay", xf["state"].effects["delay"],
+                                                                     fitter.ranges))
+        cross_fit["delay"] = {"folds": xf["folds"], "added_s": xf["added_s"],
+                              "base_delay_s": float(cur.effects.get("delay", {}).get("delay_s", 0.0))}
+        if why is None:
+            tried["delay"] = {"state": xf["state"], "rmse_after": sc, "rmse_current": cur_score, "score": g,
+                              "round": len(accepted) + 1, "fitted_on": "holdouts"}
+            accepted.append("delay")
+            cur, cur_score, cur_parts = xf["state"], sc, np.array(parts_x)
+        else:
+            cross_fit["delay"]["refused"] = why
+
+    # The hysteresis memory at each holdout's start (history nobody recorded), estimated
+    # on the part before its input swept the range, the chain fixed.
+    if "initial_state" in candidates and cur_score > 1.2 * floor_acc:
+        est = {h.name: estimate(cur, h) for h in hos}
+        errs, own = [], []
+        for e, ho in zip(holdout_errors(cur), hos):
+            k = fitted_part(ho)
+            own.append(concentrated(est[ho.name][1], est[ho.name][2], rmse(e[k:]) if k < e.size else 0.0))
+            # Only a staircase whose part's error is its own is kept.
+            errs.append(e + predict_from(cur, ho, est[ho.name][0]) - cur.predict(ho) if own[-1] else e)
+        sc = rmse(np.concatenate(errs))
+        g = (cur_score - sc) / cur_score if cur_score > 0 else 0.0
+        say(f"initial state of each holdout: holdout RMSE {sc:.4g} (without: {cur_score:.4g})")
+        first = max(hos, key=lambda h: est[h.name][1] - est[h.name][2])
+        tried["initial_state"] = {
+            "state": cur, "rmse_after": sc, "rmse_current": cur_score, "score": g, "round": len(accepted) + 1,
+            "fitted_on": "each holdout's start, before its input swept the range",
+            "params": {"extrema": est[first.name][0], "record_extrema": {h.name: est[h.name][0] for h in hos}}}
+        if g < min_shrink or cur_score - sc < 0.5 * floor_acc or sc >= hyst_alone:
+            tried["initial_state"]["refused"] = "no gain on the holdouts"
+        else:
+            accepted.append("initial_state")
+            cur_score = sc
+
     # The saved chain's slow effects are calibrated on every record (the further records
     # the user checks it on come later still).
-    final = export_state(calibrate_slow(cur, [(r, slice(None)) for r in recs]))
+    cal = calibrate_slow(cur, [(r, slice(None)) for r in recs])
+    final = export_state(cal)
     aug = Chain(final.model, final.effects)
     aug.sample_rate_hz = 1.0 / tr.dt  # the training record's: for per-sample runs (run_loop)
     timing = final.effects.get("delay", {}).get("delay_s", 0.0) if "delay" not in accepted else 0.0
     effects_out = []
     for c in accepted + sorted((c for c in tried if c not in accepted), key=lambda c: -tried[c]["score"]):
         d = tried[c]
+        at_bound: list[str] = []
         if c == "discretization":
             params: dict[str, Any] = {"n_h_suggested": d["n_h"]}
+        elif c == "initial_state":
+            params = dict(d["params"])
         else:
+            internal = cal if c in accepted and c in cal.effects else d["state"]
+            at_bound = ends_at_bound(c, internal.effects[c], fitter.ranges)
             # A detected effect's parameters are those of the augmented chain (refitted
             # after it was accepted); a refused one's those of its own candidate fit.
             src = final if c in accepted and c in final.effects else export_state(d["state"])
@@ -490,13 +591,15 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
             "params": params, "rmse_before": float(hold_before), "rmse_after": float(d["rmse_after"]),
             "shrink": float(1 - d["rmse_after"] / hold_before) if hold_before > 0 else 0.0,
             "rmse_current": float(d["rmse_current"]), "shrink_vs_current": float(d["score"]), "round": d["round"],
-            "refused": d.get("refused"),
+            "refused": d.get("refused"), "at_bound": at_bound, "fitted_on": d.get("fitted_on", "train"),
         })
     report = GapReport(
-        dominant_effect=accepted[0] if accepted else "none",
+        # The detected effect that shrank its chain's holdout RMSE the most.
+        dominant_effect=max(accepted, key=lambda c: tried[c]["score"]) if accepted else "none",
         noise_floor=floor,
         baseline={"n_h": n_h, "rmse": base_rmse, "holdout_rmse": hold_before,
-                  "reference_interpolated_holdout_rmse": ref_score,
+                  "reference_interpolated_holdout_rmse": ref_score, "reference_finer_holdout_rmse": hyst_alone,
+                  "repeatability_floor": rep_floor,
                   "effects": list(base_effects), **({"given": given} if given is not None else {})},
         where=where,
         split={"fit": f"{tr.name} (candidates: averages of {sstride} samples, {fitter.y.size} values; "
@@ -505,10 +608,13 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
                       f"other half of each holdout (two-fold cross-fitting), and for the saved chain on every "
                       f"record",
                "score": [h.name for h in hos],
+               **({"cross_fit": cross_fit} if cross_fit else {}),
                "parts": [f"{h.name} {half} half" for h in hos for half in ("first", "second")],
-               "note": "masses and effect parameters are fitted on the training record only (the slow "
-                       "effects' calibration across records excepted, see fit); every chain is scored on the "
-                       "holdouts, no sample with "
+               "note": "masses and effect parameters are fitted on the training record (the slow effects' "
+                       "calibration across records, a delay only the holdouts carry (see cross_fit: fitted on "
+                       "some holdouts, scored on the others) and each holdout's initial_state (fitted on the "
+                       "part of it before its input swept the range, the one exception to the next rule) "
+                       "excepted); every chain is scored on the holdouts, no sample with "
                        "parameters fitted on it. An effect is kept (stepwise) when it shrinks "
                        "the holdout RMSE by min_shrink and by more than half the noise floor, fits the training "
                        "record better, after the first effect worsens none of the parts "
@@ -520,6 +626,7 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
                    "shrink": float(1 - cur_score / hold_before) if hold_before > 0 else 0.0,
                    "timing_s": float(timing)},
         seconds=time.perf_counter() - t_start,
+        search_ranges={n: {k: [b.lo, b.hi] for k, b in r.items()} for n, r in fitter.ranges.items()},
         chain=aug, baseline_model=base_model, records=recs, base_residuals=base_res,
     )
     say(f"done in {report.seconds:.1f} s: dominant effect {report.dominant_effect}")

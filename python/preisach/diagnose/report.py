@@ -65,7 +65,9 @@ class GapReport:
     Attributes: ``dominant_effect`` (an effect name or ``"none"``), ``noise_floor``,
     ``baseline`` (per-record RMSE of the baseline and its holdout RMSE), ``where``
     (per-record localization), ``split`` (what fitted and what scored), ``effects``
-    (ranked: name, detected, score, evidence, params, rmse_before, rmse_after, shrink),
+    (ranked: name, detected, score, evidence, params, rmse_before, rmse_after, shrink,
+    ``at_bound``: the parameters that ended at a search bound), ``search_ranges`` (every
+    scalar's range, from the data),
     ``augmented`` (the effects kept and the holdout RMSE of the augmented chain),
     ``seconds``; ``chain`` is the augmented :class:`~preisach.chain.Chain`."""
 
@@ -78,6 +80,7 @@ class GapReport:
         self.effects: list[dict[str, Any]] = kw["effects"]
         self.augmented: dict[str, Any] = kw["augmented"]
         self.seconds: float = kw["seconds"]
+        self.search_ranges: dict[str, Any] = kw.get("search_ranges", {})
         self.chain = kw["chain"]
         self.baseline_model = kw["baseline_model"]
         self._records = kw["records"]
@@ -89,6 +92,7 @@ class GapReport:
             "dominant_effect": self.dominant_effect, "noise_floor": self.noise_floor,
             "baseline": self.baseline, "where": self.where, "split": self.split,
             "effects": self.effects, "augmented": self.augmented, "seconds": self.seconds,
+            "search_ranges": self.search_ranges,
         })
 
     def to_json(self) -> str:
@@ -106,7 +110,14 @@ class GapReport:
     def summary(self) -> str:
         """A few lines for humans."""
         b = self.baseline
-        lines = [f"baseline (n_h={b['n_h']}) holdout RMSE {b['holdout_rmse']:.4g}; noise floor {self.noise_floor:.3g}"]
+        rf = b.get("repeatability_floor")
+        lines = [f"baseline (n_h={b['n_h']}) holdout RMSE {b['holdout_rmse']:.4g}; noise floor {self.noise_floor:.3g}"
+                 + (f"; repeatability floor {rf:.3g}" if rf is not None else "")]
+        if "reference_interpolated_holdout_rmse" in b:
+            lines.append(f"hysteresis alone: interpolated {b['reference_interpolated_holdout_rmse']:.4g}"
+                         + (f", finer {b['reference_finer_holdout_rmse']:.4g}"
+                            if "reference_finer_holdout_rmse" in b else "")
+                         + " (every shrink below is against the chain the effect was added to)")
         for w in self.where:
             seg = max(w["segments"].items(), key=lambda kv: kv[1]["share_of_error"])
             lines.append(f"  {w['record']}: RMSE {w['rmse']:.4g}, largest share of error {seg[0]} "
@@ -114,8 +125,15 @@ class GapReport:
         lines.append(f"dominant effect: {self.dominant_effect}")
         for e in self.effects:
             mark = "*" if e["detected"] else " "
-            lines.append(f" {mark} {e['name']:14s} shrink {100 * e['shrink']:6.1f} %  "
-                         f"({e['rmse_before']:.4g} -> {e['rmse_after']:.4g})  {json.dumps(_clean(e['params']))}")
+            cur = e.get("rmse_current", e["rmse_before"])
+            sh = e.get("shrink_vs_current", e["shrink"])
+            lines.append(f" {mark} {e['name']:14s} shrink {100 * sh:6.1f} %  "
+                         f"({cur:.4g} -> {e['rmse_after']:.4g})  {json.dumps(_clean(e['params']))}"
+                         + (f"  [refused: {e['refused']}]" if e.get("refused") else ""))
+            # (A candidate that did not help is not worth a line: its JSON lists its bounds.)
+            for b in (e.get("at_bound") or []) if e["detected"] or sh > 0 else []:
+                lines.append(f"   ! {e['name']}: {b} ended at its search bound: the effect lies outside the range "
+                             f"searched or is no such effect (not called detected on it)")
         a = self.augmented
         lines.append(f"augmented chain {a['effects'] or '(no effects)'}: holdout RMSE {a['holdout_rmse']:.4g} "
                      f"({100 * a['shrink']:.0f} % below the baseline); {self.seconds:.1f} s")

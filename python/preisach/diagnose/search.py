@@ -38,36 +38,28 @@ from preisach.diagnose.effects import (
     rate_branch,
     rmse,
 )
+from preisach.diagnose.ranges import CREEP_AMP_MAX, CREEP_TAU_MIN, Ranges, delay_grid, search_ranges
 from preisach.model import PreisachModel
 
 Effects = dict[str, dict[str, Any]]
 T = TypeVar("T")
 R = TypeVar("R")
 
-#: Shortest creep time constant searched: faster "creep" is a low-pass's business.
-CREEP_TAU_MIN = 5e-3
-#: Longest creep time constant searched, in training-record lengths: a longer one shows
-#: only its initial slope on the record, and the fit trades a large amplitude with a long
-#: time constant for it, which compresses the output towards its first value on any
-#: other record (the gain is 1 - amplitude until the element has moved).
-CREEP_TAU_MAX_RECORDS = 3.0
 #: The same across records (``calibrate_slow``): every record restarts the element, so
 #: the amplitude and the time constant separate better than on one record.
 CREEP_CAL_TAU_MAX_RECORDS = 10.0
-#: Largest creep amplitude searched (realistic stages creep 1-10 %).
-CREEP_AMP_MAX = 0.12
 
-#: Scalars polished per effect: (parameter, log scale?, lower bound, upper bound, first
-#: step: relative, or in log units). A mode's frequency needs small steps: a long
-#: ringing turns its phase quickly with the frequency, so the error is smooth only
-#: within a fraction of a percent.
-SCALARS: dict[str, list[tuple[str, bool, float, float, float]]] = {
-    "delay": [("delay_s", False, 0.0, 5e-3, 0.1)],
-    "lowpass": [("cutoff_hz", True, 10.0, 1e6, 0.1)],
-    "vibration": [("frequency_hz", True, 50.0, 1e6, 0.002), ("damping", True, 1e-3, 0.5, 0.15)],
-    "creep": [("tau", True, CREEP_TAU_MIN, 100.0, 0.2), ("amp", False, 0.0, CREEP_AMP_MAX, 0.2)],
-    "drift": [("gain_per_s", False, -0.5, 0.5, 0.1)],
-    "rate": [("tau_s", True, 1e-3, 3e-2, 0.2)],
+#: Scalars polished per effect: (parameter, first step: relative, or in log units; the
+#: ranges come from the data, ``preisach.diagnose.ranges``). A mode's frequency needs
+#: small steps: a long ringing turns its phase quickly with the frequency, so the error
+#: is smooth only within a fraction of a percent.
+SCALARS: dict[str, list[tuple[str, float]]] = {
+    "delay": [("delay_s", 0.1)],
+    "lowpass": [("cutoff_hz", 0.1)],
+    "vibration": [("frequency_hz", 0.002), ("damping", 0.15)],
+    "creep": [("tau", 0.2), ("amp", 0.2)],
+    "drift": [("gain_per_s", 0.1)],
+    "rate": [("tau_s", 0.2)],
 }
 DYNAMIC = ("vibration", "lowpass")
 #: Effects whose parameters trade off against each other's (polished together): a delay
@@ -184,7 +176,7 @@ class Fitter:
     rises the same as at 1e-5 to within 2 %, at 13 % fewer iterations)."""
 
     def __init__(self, rec: Record, n_h: int, u_range: tuple[float, float], stride: int = 1,
-                 tol: float = 3e-5, trials: Optional[Trials] = None) -> None:
+                 tol: float = 3e-5, trials: Optional[Trials] = None, ranges: Optional[Ranges] = None) -> None:
         from preisach import _preisach
 
         self._behind = _preisach.Behind
@@ -202,6 +194,9 @@ class Fitter:
         self.t = window_mean(rec.t, self.stride)
         self.y = window_mean(rec.y, self.stride)
         self.dt = rec.dt * self.stride
+        #: Every scalar's search range (from the data; see ``preisach.diagnose.ranges``).
+        self.ranges: Ranges = ranges if ranges is not None else search_ranges(
+            rec.u, rec.dt, float(rec.t[-1] - rec.t[0]), self.dt)
         #: A fitter on longer windows for the slow effects' own searches (creep, drift:
         #: the window average is exact for any chain, and a slow trend's error landscape
         #: is the same on it at a fraction of the cost); their polish runs here.
@@ -305,7 +300,7 @@ class Fitter:
         """The chain with masses >= 0 (exact NNLS projection) and its linear
         coefficients refitted with them."""
         if n_h is not None and n_h != self.n_h:
-            return Fitter(self.rec, n_h, self.u_range, self.stride, self.tol, self.trials).state(eff)
+            return Fitter(self.rec, n_h, self.u_range, self.stride, self.tol, self.trials, self.ranges).state(eff)
         pb = self._problem(eff)
         res = self._solve(pb, nnls=True)
         model = PreisachModel._wrap(res["model"], "interpolated")
@@ -318,10 +313,9 @@ class Fitter:
     def line(self, eff: Effects, name: str, key: str, scale: float = 1.0, refine: int = 2) -> tuple[Effects, float]:
         """Narrow search on one scalar from its current value (parabolic steps; the first
         step is the scalar's own, times ``scale``)."""
-        _, logs, lo, hi, rel = next(s for s in SCALARS[name] if s[0] == key)
-        rel *= scale
-        if name == "creep" and key == "tau":
-            hi = max(0.05, CREEP_TAU_MAX_RECORDS * float(self.rec.t[-1] - self.rec.t[0]))
+        rel = next(s for s in SCALARS[name] if s[0] == key)[1] * scale
+        b = self.ranges[name][key]
+        logs, lo, hi = b.log, b.lo, b.hi
         x0 = _get(eff, name, key)
         if logs:
             c = math.log(max(x0, 1e-300))
@@ -376,7 +370,7 @@ class Fitter:
                     lt = math.log(float(eff["creep"]["taus_s"][0]))
                     eff, fx = self.line_creep(eff, [lt - 0.2 * scale, lt, lt + 0.2 * scale], refine)
                     continue
-                for key, *_ in SCALARS[n]:
+                for key, _ in SCALARS[n]:
                     eff, fx = self.line(eff, n, key, scale, refine)
             if fx > 0.999 * f0:
                 break
@@ -387,7 +381,6 @@ class Fitter:
         """Chain ``base`` plus effect ``name``: the effect's own search with the others
         fixed, then a joint polish of the coupled effects."""
         r = self.rec
-        T = float(r.t[-1] - r.t[0])
         eff = {k: dict(p) for k, p in base.items()}
         j_base = self.J(eff)
         if name == "delay" and "delay" in eff and any(k in eff for k in DYNAMIC):
@@ -395,7 +388,7 @@ class Fitter:
             # them): only a narrow search, the dynamics re-balanced below.
             eff, _ = self.line(eff, "delay", "delay_s", 3.0)
         elif name == "delay":
-            grid = np.concatenate([[0.0], np.geomspace(max(r.dt / 2, 1e-5), 3e-3, 11)])
+            grid = delay_grid(r.dt / 2, self.ranges["delay"]["delay_s"].hi)
             f, fm = self.along(lambda d: dict(eff, delay={"delay_s": d}))
             d, _ = _grid_then_parabola(f, grid, fmany=fm)
             eff["delay"] = {"delay_s": float(max(d, 0.0))}
@@ -404,6 +397,7 @@ class Fitter:
         elif name == "lowpass":
             d0 = eff.get("delay", {}).get("delay_s", 0.0)
             best = None
+            bc = self.ranges["lowpass"]["cutoff_hz"]
             for order in (1, 2):
                 def lp(lf: float, order: int = order) -> Effects:
                     p = {"cutoff_hz": math.exp(lf), "order": order}
@@ -412,7 +406,7 @@ class Fitter:
                         # The delay absorbed the low-pass's lag: keep the total.
                         e["delay"] = {"delay_s": max(0.0, d0 - group_delay(p))}
                     return e
-                grid = np.log(np.geomspace(50.0, 0.4 / self.dt, 10))
+                grid = np.log(np.geomspace(bc.lo, bc.hi, max(10, int(round(1.5 * math.log2(bc.hi / bc.lo))))))
                 f, fm = self.along(lp)
                 lf, fx = _grid_then_parabola(f, grid, fmany=fm)
                 if best is None or fx < best[1]:
@@ -428,14 +422,16 @@ class Fitter:
             tau, c = (self.slow or self).creep_init(eff)
             eff["creep"] = {"taus_s": [tau], "amplitudes": [c], "normalized": True}
         elif name == "drift":
-            gmax = min(0.1, 0.5 / max(T, 1e-9))
+            gmax = min(0.1, 0.5 * self.ranges["drift"]["gain_per_s"].hi)
             f, fm = (self.slow or self).along(
                 lambda g: dict(eff, drift={"gain_per_s": g, "offset": 0.0, "offset_per_s": 0.0}))
             g, _ = _grid_then_parabola(f, np.linspace(-gmax, gmax, 7), fmany=fm)
             eff["drift"] = {"gain_per_s": float(g), "offset": 0.0, "offset_per_s": 0.0}
         elif name == "rate":
             f, fm = self.along(lambda lt: dict(eff, rate={"gain_s": 0.0, "tau_s": math.exp(lt)}))
-            lt, _ = _grid_then_parabola(f, np.log(np.array([1e-3, 2e-3, 5e-3, 1e-2, 2e-2])), fmany=fm)
+            br = self.ranges["rate"]["tau_s"]
+            n = max(5, int(math.ceil(math.log(br.hi / br.lo) / math.log(3.0))) + 1)
+            lt, _ = _grid_then_parabola(f, np.log(np.geomspace(br.lo, br.hi, n)), fmany=fm)
             eff["rate"] = {"gain_s": 0.0, "tau_s": float(math.exp(lt))}
         else:
             raise ValueError(f"unknown effect {name!r}")
@@ -466,10 +462,11 @@ class Fitter:
         """The best creep amplitude for time constant ``tau`` (parabolic steps; amplitude
         0 is the chain without creep, whose error is known)."""
         f, fm = self.along(lambda c: dict(eff, creep={"taus_s": [float(tau)], "amplitudes": [c], "normalized": True}))
-        c0 = min(max(c0, 0.01), 0.5 * CREEP_AMP_MAX)
+        amax = self.ranges["creep"]["amp"].hi
+        c0 = min(max(c0, 0.01), 0.5 * amax)
         a, b = c0 / 3, c0
         known = {0.0: self.J({k: v for k, v in eff.items() if k != "creep"})}
-        c, fx = _parabolic_search(f, [0.0, a, b], 0.0, CREEP_AMP_MAX, refine=refine, expand=4, known=known,
+        c, fx = _parabolic_search(f, [0.0, a, b], 0.0, amax, refine=refine, expand=4, known=known,
                                   fmany=fm)
         if c == 0.0:
             # Best at no creep: the parabola through 0, a, b may still dip inside (0, a).
@@ -487,8 +484,8 @@ class Fitter:
         """Creep's time constant searched with its amplitude refitted at every trial: the
         two trade off along a curved valley (a longer element needs a larger amplitude),
         which coordinate steps cross only slowly."""
-        T = float(self.rec.t[-1] - self.rec.t[0])
-        hi = math.log(max(0.05, CREEP_TAU_MAX_RECORDS * T))
+        bt = self.ranges["creep"]["tau"]
+        hi = math.log(bt.hi)
         amps: dict[float, float] = {}
         c0 = float(eff["creep"]["amplitudes"][0]) if "creep" in eff else 0.03
 
@@ -497,20 +494,20 @@ class Fitter:
             amps[lt] = c
             return fx
 
-        lo = math.log(CREEP_TAU_MIN)
+        lo = math.log(bt.lo)
         pts = sorted({min(max(x, lo), hi) for x in lt_pts})
         lt, fx = _parabolic_search(f, pts, lo, hi, refine=refine, expand=3)
         e = dict(eff, creep={"taus_s": [float(math.exp(lt))], "amplitudes": [amps[lt]], "normalized": True})
         return e, fx
 
     def creep_init(self, eff: Effects) -> tuple[float, float]:
-        """Creep (one element): a grid over the time constant (5 ms to 3x the record), the
+        """Creep (one element): a grid over the time constant (its range: 5 ms to 3x the record), the
         amplitude refitted at each, then parabolic steps around the best. Where the record
         cannot tell time constants apart (the error equal to 2e-4 of it), the smallest
         amplitude is taken: a long element with a large amplitude fits the record as well
         and compresses every other one."""
-        T = float(self.rec.t[-1] - self.rec.t[0])
-        taus = [float(x) for x in np.geomspace(CREEP_TAU_MIN, max(0.05, CREEP_TAU_MAX_RECORDS * T), 8)]
+        bt = self.ranges["creep"]["tau"]
+        taus = [float(x) for x in np.geomspace(bt.lo, bt.hi, 8)]
         fits = self.trials.map(lambda tau: self.creep_amp(eff, tau, refine=1), taus)
         trials = [(fx, c, tau) for tau, (c, fx) in zip(taus, fits)]
         best = min(trials)[0]

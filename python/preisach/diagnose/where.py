@@ -3,7 +3,7 @@ point at an effect. All numpy, all on the residual ``r = y - model``."""
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Optional, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,6 +17,23 @@ def noise_floor(r: NDArray[np.float64]) -> float:
         return float("nan")
     d2 = np.diff(r, 2)
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
+
+
+def repeatability_floor(records: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]]) -> Optional[float]:
+    """The repeatability floor from repeated records, ``(u, y)`` pairs: records whose
+    inputs agree (same length, within 1e-3 of the input's span RMS) are repeats of one
+    experiment, and the RMS of their outputs' difference is what a chain fitted on one
+    repeat scores on another at best (noise, wander, the stage's own unrepeatability of
+    both). The median over every pair of repeats; None when there are none."""
+    out = []
+    for i, (ui, yi) in enumerate(records):
+        for uj, yj in records[:i]:
+            if ui.size != uj.size:
+                continue
+            span = max(float(np.ptp(ui)), 1e-300)
+            if math.sqrt(float(np.mean((ui - uj) ** 2))) <= 1e-3 * span:
+                out.append(math.sqrt(float(np.mean((yi - yj) ** 2))))
+    return float(np.median(out)) if out else None
 
 
 def segments(u: NDArray[np.float64], dt: float) -> dict[str, NDArray[np.bool_]]:

@@ -1,0 +1,71 @@
+"""The hysteresis memory at a record's start, when history nobody recorded came before.
+
+A record that starts mid-range after unrecorded excursions does not start with every
+relay at -1: the output carries an offset that fades once the input has swept the range
+(wiping-out erases the history). The starting staircase is estimated per record as
+alternating extrema in input units (the hysteresis block's ``initial_extrema``: the
+input rose to ``M``, fell to ``m``, then went to the first sample), with the chain
+fixed, on the part of the record before the input has swept its range (the only part
+the memory at the start reaches). Two numbers fitted on the samples they are scored on:
+the staircase counts only where that part's error is its own (``concentrated``).
+"""
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+from numpy.typing import NDArray
+
+from preisach.chain import Chain
+from preisach.diagnose.effects import FitState, Record, rmse
+
+
+def swept(u: NDArray[np.float64]) -> int:
+    """The sample after which the input has reached both its lowest and its highest
+    value (within 0.1 % of its span: a periodic input reaches them every period, in
+    values equal to rounding): beyond it the starting memory is wiped out."""
+    tol = 1e-3 * float(np.ptp(u))
+    lo = int(np.argmax(u <= np.min(u) + tol))
+    hi = int(np.argmax(u >= np.max(u) - tol))
+    return max(lo, hi) + 1
+
+
+def predict_from(st: FitState, rec: Record, extrema: Optional[list[float]]) -> NDArray[np.float64]:
+    """The chain's output on ``rec`` with the hysteresis memory after ``extrema``."""
+    if not extrema:
+        return st.predict(rec)
+    blocks = Chain(st.model, st.effects).blocks
+    blocks[0] = dict(blocks[0], initial_extrema=[float(x) for x in extrema])
+    y: NDArray[np.float64] = Chain.from_blocks(blocks).predict(rec.t, rec.u)
+    return y
+
+
+def fitted_part(rec: Record) -> int:
+    """The samples the starting staircase is fitted on: the part before the sweep."""
+    return max(swept(rec.u), 16)
+
+
+def concentrated(before: float, after: float, rest: float) -> bool:
+    """The part before the sweep carries an error of its own (at least twice the rest
+    of the record's RMSE ``rest``) that the staircase halves at least: what a memory
+    at the start leaves, unlike an effect that errs all along the record."""
+    return before >= 2.0 * rest and after <= 0.5 * before
+
+
+def estimate(st: FitState, rec: Record, levels: int = 9) -> tuple[list[float], float, float]:
+    """The starting staircase of ``rec`` (``[M, m]``, ``[M]`` or none) that fits the
+    part before the sweep best (``fitted_part``), on a grid of the model's range;
+    returns it with the RMSE of that part before and after."""
+    k = fitted_part(rec)
+    part = Record(rec.name, rec.t[:k], rec.u[:k], rec.y[:k], rec.dt)
+    lo, hi = st.model.u_range
+    grid = np.linspace(lo, hi, levels)
+    before = rmse(predict_from(st, part, None) - part.y)
+    best: tuple[float, list[float]] = (before, [])
+    for M in grid[1:]:
+        for m in [None] + [float(x) for x in grid if x < M]:
+            ex = [float(M)] if m is None else [float(M), m]
+            e = rmse(predict_from(st, part, ex) - part.y)
+            if e < best[0]:
+                best = (e, ex)
+    return best[1], before, best[0]
