@@ -5,6 +5,7 @@ from pathlib import Path
 from typing import Any
 
 from preisach.diagnose.where import spectrum
+from preisach.io import atomic_write
 
 
 def _plt() -> Any:
@@ -47,7 +48,7 @@ def plot_report(rep: Any, directory: Any) -> list[str]:
         ax[2].set(xlabel="t [s]", ylabel="y")
         fig.tight_layout()
         name = d / f"record{i}_{Path(r.name).stem.replace(' ', '_')}.png"
-        fig.savefig(name, dpi=90)
+        atomic_write(name, lambda tmp: fig.savefig(tmp, dpi=90, format="png"))
         plt.close(fig)
         files.append(str(name))
     return files
