@@ -74,11 +74,11 @@ def _line(first: Optional[int], i: int) -> str:
 def _read_npz(p: Path) -> dict[str, NDArray[np.float64]]:
     cols: dict[str, NDArray[np.float64]] = {}
     try:
-        with np.load(p, allow_pickle=False) as z:
+        with open(p, "rb") as f, np.load(f, allow_pickle=False) as z:  # our handle: closed on any error
             for k in z.files:
                 cols[k] = np.asarray(z[k], dtype=np.float64).ravel()
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{p}: not a readable .npz file ({exc})") from None
+    except Exception as exc:  # zipfile, zlib and numpy raise many kinds on corrupt files
+        raise ValueError(f"{p}: not a readable .npz file ({type(exc).__name__}: {exc})") from None
     return cols
 
 
