@@ -103,7 +103,7 @@ def _check_lookahead(method: str, lookahead: Any, streaming: bool) -> Optional[i
         raise ValueError(f"lookahead: expected a non-negative int or None, got {lookahead!r}")
     if lookahead < 0:
         raise ValueError(f"lookahead: must be >= 0, got {lookahead}")
-    if lookahead >= 2**63:
+    if int(lookahead) >= 2**63:
         raise ValueError(f"lookahead: {lookahead} is too large (at most 2**63 - 1 samples)")
     if method != "interpolated":
         raise ValueError(f"lookahead: only used by method 'interpolated'; must be None for {method!r}")

@@ -11,8 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from preisach import _preisach
-from preisach._validate import (as_n_h, as_number, as_range, as_signal, check_range_reached, one_thread,
-                                upper_triangular)
+from preisach._validate import as_n_h, as_number, as_range, as_signal, check_range_reached, one_thread, upper_triangular
 from preisach.io import PathLike, write_text
 
 if TYPE_CHECKING:
