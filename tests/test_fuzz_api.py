@@ -238,3 +238,20 @@ def test_invert_far_outside_the_reachable_range(model, method):
             assert np.all((u >= 0.0) & (u <= 10.0))
             inv = model.inverter(method=method, lookahead=3 if method == "interpolated" else None)
             assert np.all(np.isfinite(inv.process(r)))
+
+
+@given(t=hostile_array(max_len=8), u=hostile_array(max_len=8), y=hostile_array(max_len=8),
+       fs=st.one_of(hostile_float, st.sampled_from(NOT_NUMBERS)), what=st.sampled_from(["loop", "tracking", "spectra",
+                                                                                        "weights"]))
+def test_plots(tmp_path, monkeypatch, model, t, u, y, fs, what):
+    """Bad arrays are refused naming the argument before matplotlib is imported (valid
+    ones are drawn but not rendered to PNG here, for time)."""
+    plt = pytest.importorskip("matplotlib.pyplot")
+    monkeypatch.setattr(preisach.plots, "_save", lambda fig, p: plt.close(fig) or str(p))
+    path = tmp_path / "p.png"
+    calls = {"loop": (lambda: preisach.plots.plot_loop(t, u, y, y, path), ["t", "u", "measured", "model"]),
+             "tracking": (lambda: preisach.plots.plot_tracking(t, u, y, path), ["t", "reference", "measured"]),
+             "spectra": (lambda: preisach.plots.plot_spectra({"u": u}, fs, path), ["signals", "sample_rate_hz"]),
+             "weights": (lambda: preisach.plots.plot_weights(u, path), ["model"])}
+    call, names = calls[what]
+    outcome(call, names)
