@@ -194,7 +194,7 @@ proptest! {
         "lowpass_order", "dac_bits", "adc_bits", "drift_gain_per_s", "drift_offset_per_s", "sample_rate_hz", "x"]),
                                       value in wrong_value()) {
         let over = json!({ key: value }).to_string();
-        if let Some(c) = ok_or_named(blocks::preset("paper", &over), &[key, "preset", "overrides", "chain"])? {
+        if let Some(c) = ok_or_named(blocks::preset("paper", &over), &[key, "preset", "overrides", "chain", "blocks"])? {
             ok_or_named(c.stage(), &[key, "blocks", "sample_rate_hz"])?;
         }
     }
