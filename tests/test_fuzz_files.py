@@ -45,6 +45,10 @@ def _docs() -> dict[str, object]:
 DOCS = _docs()
 
 
+#: What an error about a chain, model or stage file may name.
+JSON_NAMES = ["chain", "corrupt", "text", "blocks", "model", "weights", "sample_rate_hz", "initial_input"]
+
+
 def scratch(tmp: Path, suffix: str, data: bytes) -> Path:
     """A fresh file under ``tmp`` (hypothesis reuses the function-scoped tmp_path)."""
     p = tmp / f"{uuid.uuid4().hex}{suffix}"
@@ -56,7 +60,7 @@ def scratch(tmp: Path, suffix: str, data: bytes) -> Path:
 def test_chain_json_mutations(tmp_path, name, data):
     text = data.draw(mutated_json(DOCS[name]))
     for load in (preisach.Chain.from_json, Stage.from_json):
-        got = outcome(lambda: load(text), ["chain", "corrupt", "text", "blocks", "model", "weights"])
+        got = outcome(lambda: load(text), JSON_NAMES)
         if isinstance(got, preisach.Chain):
             json.loads(got.to_json())  # what loads is written back as valid JSON
     p = scratch(tmp_path, ".json", text.encode("utf-8", "surrogatepass"))
@@ -67,8 +71,8 @@ def test_chain_json_mutations(tmp_path, name, data):
 @given(name=st.sampled_from(sorted(DOCS)), data=st.data())
 def test_chain_dict_mutations(name, data):
     d = data.draw(st.builds(json.loads, mutated_json(DOCS[name]).filter(_parses)))
-    outcome(lambda: preisach.Chain.from_dict(d), ["chain", "corrupt", "blocks", "model", "weights"])
-    outcome(lambda: preisach.PreisachModel.from_dict(d), ["chain", "corrupt", "blocks", "model", "weights"])
+    outcome(lambda: preisach.Chain.from_dict(d), JSON_NAMES)
+    outcome(lambda: preisach.PreisachModel.from_dict(d), JSON_NAMES)
 
 
 def _parses(text: str) -> bool:
