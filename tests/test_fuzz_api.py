@@ -256,3 +256,43 @@ def test_plots(tmp_path, monkeypatch, model, t, u, y, fs, what):
              "weights": (lambda: preisach.plots.plot_weights(u, path), ["model"])}
     call, names = calls[what]
     outcome(call, names)
+
+
+# --- regressions found by fuzzing ------------------------------------------------------
+def test_regressions_found_by_fuzzing(tmp_path, model):
+    def refused(call, starts):
+        with pytest.raises(ValueError) as e:
+            call()
+        assert str(e.value).startswith(starts), str(e.value)
+
+    # A chain without a version: was a panic (an internal RuntimeError).
+    refused(lambda: preisach.Chain.from_json('{"format": "preisach-chain", "blocks": []}'),
+            "corrupt chain: unsupported version null")
+    # Nesting deeper than Python's recursion limit: was a RecursionError.
+    refused(lambda: preisach.Chain.from_json("[" * 100_000 + "]" * 100_000), "corrupt chain: not JSON")
+    deep: dict = {}
+    for _ in range(5000):
+        deep = {"x": deep}
+    refused(lambda: preisach.Chain.from_dict({"format": "preisach-chain", "version": 2, "blocks": [], "report": deep}),
+            "chain: nested too deeply")
+    # Non-numeric arrays: were NumPy's message without the argument.
+    refused(lambda: model.invert(["a", "b"]), "r: cannot be converted")
+    refused(lambda: model.inverter().process(["a"]), "block: cannot be converted")
+    refused(lambda: preisach.chain.sample_period(["a", "b"]), "t: cannot be converted")
+    refused(lambda: model.stream().step(None), "u: expected a number")
+    refused(lambda: model.inverter().step("1"), "r: expected a number")
+    # A look-ahead past usize: was an OverflowError.
+    refused(lambda: model.invert([1.0], "interpolated", lookahead=2**64), "lookahead: ")
+    refused(lambda: model.inverter("interpolated", lookahead=2**64), "lookahead: ")
+    # n_h far past the cap with a range: allocated n_h centres first (MemoryError).
+    refused(lambda: preisach.PreisachModel.fit(np.linspace(0, 1, 9), np.zeros(9), 2**40, (0.0, 1.0)), "n_h: ")
+    # Values near the float64 limits: overflowed to NaN.
+    assert preisach.fit_percent([1e308, -1e308], [-1e308, 1e308]) == pytest.approx(-100.0)
+    # A truncated .npz: was an EOFError (and left the file open).
+    npz = tmp_path / "r.npz"
+    np.savez(npz, t=np.arange(3.0), u=np.zeros(3), y=np.zeros(3))
+    npz.write_bytes(npz.read_bytes()[:40])
+    refused(lambda: preisach.read_record(npz), f"{npz}: not a readable .npz file")
+    # Plots: mismatched lengths were matplotlib's message.
+    refused(lambda: preisach.plots.plot_loop([0.0, 1.0], [0.0], [0.0, 1.0], [0.0, 1.0], tmp_path / "p.png"),
+            "u: length 1 does not match t")

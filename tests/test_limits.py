@@ -55,6 +55,7 @@ CHILD = textwrap.dedent(r"""
         "fit n_h": (lambda: preisach.PreisachModel.fit(u, y, n_h=10**6), "n_h"),
         "fit n_h cap+1": (lambda: preisach.PreisachModel.fit(u, y, n_h=16_001), "n_h"),
         "fit n_h 2^40": (lambda: preisach.PreisachModel.fit(u, y, n_h=2**40), "n_h"),
+        "fit n_h 2^40 in a range": (lambda: preisach.PreisachModel.fit(u, y, n_h=2**40, u_range=(0.0, 10.0)), "n_h"),
         "preset n_h": (lambda: Stage.preset("paper", n_h=10**6), "n_h"),
         "json hysteresis n_h": (lambda: preisach.Chain.from_blocks([dict(hyst, n_h=10**7)]), "n_h"),
         "delay samples": (lambda: preisach.Chain.from_blocks([{"type": "delay", "delay_s": 1e6}],
@@ -82,7 +83,7 @@ CHILD = textwrap.dedent(r"""
         print("refused: nothing to refuse, and nothing of that size allocated")
 """)
 
-NAMES = ["fit n_h", "fit n_h cap+1", "fit n_h 2^40", "preset n_h", "json hysteresis n_h", "delay samples",
+NAMES = ["fit n_h", "fit n_h cap+1", "fit n_h 2^40", "fit n_h 2^40 in a range", "preset n_h", "json hysteresis n_h", "delay samples",
          "delay on a record", "lookahead stream", "lookahead invert", "regression rows", "MAT dimensions",
          "MAT dimensions list"]
 

@@ -268,3 +268,11 @@ fn closest_match_of_references_far_outside_the_range() {
         }
     }
 }
+
+/// Regression: a version-2 chain without `version` indexed a missing key (a panic).
+#[test]
+fn a_chain_without_a_version_is_corrupt() {
+    let e = Chain::from_json(r#"{"format": "preisach-chain", "blocks": []}"#).unwrap_err();
+    assert!(matches!(e, PreisachError::Corrupt { .. }), "{e}");
+    assert!(e.to_string().contains("unsupported version null"), "{e}");
+}
