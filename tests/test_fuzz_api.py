@@ -64,7 +64,7 @@ def test_model_constructor(w, n, rng, offset, output):
 def test_fit(u, y, n_h, rng, reg, solver, output):
     keep = frozen(u, y)
     got = outcome(lambda: preisach.PreisachModel.fit(u, y, n_h, rng, reg, solver, output),
-                  ["u", "y", "n_h", "u_range", "reg", "solver", "output"])
+                  ["u", "y", "n_h", "u_range", "reg", "solver", "output", "weights"])
     if isinstance(got, preisach.PreisachModel):
         assert np.all(np.isfinite(got.weights)) and got.report is not None
     assert all(unchanged(a, b) for a, b in zip(keep, (u, y)))
@@ -78,7 +78,7 @@ def test_fit_on_extreme_scales(n, n_h, lo, span, scale):
     u = lo + span * sweep(n, 0.0, 1.0)
     y = scale * np.sin(np.arange(n))
     assume(np.all(np.isfinite(u)))
-    got = outcome(lambda: preisach.PreisachModel.fit(u, y, n_h), ["u", "y", "n_h", "u_range"])
+    got = outcome(lambda: preisach.PreisachModel.fit(u, y, n_h), ["u", "y", "n_h", "u_range", "weights"])
     if isinstance(got, preisach.PreisachModel):
         assert np.all(np.isfinite(got.weights)) and np.isfinite(got.offset)
 
@@ -286,6 +286,8 @@ def test_regressions_found_by_fuzzing(tmp_path, model):
     refused(lambda: model.inverter("interpolated", lookahead=2**64), "lookahead: ")
     # n_h far past the cap with a range: allocated n_h centres first (MemoryError).
     refused(lambda: preisach.PreisachModel.fit(np.linspace(0, 1, 9), np.zeros(9), 2**40, (0.0, 1.0)), "n_h: ")
+    # Masses whose sum overflows: NaN outputs.
+    refused(lambda: preisach.PreisachModel(np.triu(np.full((3, 3), 1e308)), (0.0, 1.0)), "weights: the masses sum")
     # Values near the float64 limits: overflowed to NaN.
     assert preisach.fit_percent([1e308, -1e308], [-1e308, 1e308]) == pytest.approx(-100.0)
     # A truncated .npz: was an EOFError (and left the file open).

@@ -276,3 +276,11 @@ fn a_chain_without_a_version_is_corrupt() {
     assert!(matches!(e, PreisachError::Corrupt { .. }), "{e}");
     assert!(e.to_string().contains("unsupported version null"), "{e}");
 }
+
+/// Regression: masses whose sum overflows gave NaN outputs instead of an error.
+#[test]
+fn masses_that_overflow_are_refused() {
+    let e = PreisachModel::from_dense(0.0, 1.0, 2, &[1e308, 1e308, 0.0, 1e308], 0.0).unwrap_err();
+    assert!(e.to_string().starts_with("weights: the masses sum to"), "{e}");
+    assert!(PreisachModel::from_dense(0.0, 1.0, 2, &[1e300, 1e300, 0.0, 1e300], 0.0).is_ok());
+}
