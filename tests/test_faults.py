@@ -75,7 +75,7 @@ def test_a_process_killed_while_writing_leaves_the_old_or_the_new_file(tmp_path,
     path = tmp_path / f"out.{kind}"
     rng = np.random.default_rng(1)
     seen = set()
-    for _ in range(8):
+    for _ in range(int(os.environ.get("FUZZ_KILLS", "8"))):
         with subprocess.Popen([sys.executable, "-c", WRITER, kind, str(path)], stdout=subprocess.PIPE, text=True) as p:
             assert p.stdout is not None and p.stdout.readline().strip() == "ready"
             deadline = time.monotonic() + 60
