@@ -154,7 +154,10 @@ def _cmd_simulate(a: argparse.Namespace) -> int:
         raise UsageError("preisach simulate: give either STAGE.json or --preset NAME (see --help)")
     chain = Stage.preset(a.preset) if a.preset is not None else _load_chain(a.stage)
     rec = read_record(a.input, ["t", "u"])
-    y = chain.simulate(rec["t"], rec["u"])
+    try:
+        y = chain.simulate(rec["t"], rec["u"])
+    except ValueError as exc:  # e.g. a block the input's rate cannot run: name the record
+        raise ValueError(f"{a.input}: {exc}") from None
     write_csv(a.output_path, {"t": rec["t"], "u": rec["u"], "y": y})
     fs = (rec["t"].size - 1) / (rec["t"][-1] - rec["t"][0]) if rec["t"].size > 1 else float("nan")
     print(f"wrote {a.output_path} ({len(y)} samples at the input's {fs:g} Hz)")
