@@ -1,8 +1,24 @@
 """Shared helpers: an independent NumPy relay grid (the oracle) and random models."""
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, settings
+
+# Hypothesis budgets. ``ci`` (the default, and what `.ci/run` uses) keeps the property
+# and fuzz tests to a small time budget; ``campaign`` is the longer run of
+# benches/fuzz_campaign.py. Tests that set max_examples themselves keep their own.
+settings.register_profile("ci", max_examples=30, deadline=None, derandomize=True,
+                          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
+                                                 HealthCheck.function_scoped_fixture])
+settings.register_profile("dev", max_examples=100, deadline=None,
+                          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
+                                                 HealthCheck.function_scoped_fixture])
+settings.register_profile("campaign", max_examples=int(os.environ.get("FUZZ_EXAMPLES", "1000")), deadline=None,
+                          database=None, suppress_health_check=list(HealthCheck))
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
 def relay_grid_predict(weights: np.ndarray, lo: float, hi: float, offset: float, u: np.ndarray,

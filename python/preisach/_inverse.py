@@ -60,6 +60,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from preisach import _preisach
+from preisach._validate import as_number, one_thread
 
 __all__ = ["METHODS", "InversionInfo", "Inverter", "invert"]
 
@@ -108,13 +109,18 @@ def _check_lookahead(method: str, lookahead: Any, streaming: bool) -> Optional[i
         raise ValueError(f"lookahead: expected a non-negative int or None, got {lookahead!r}")
     if lookahead < 0:
         raise ValueError(f"lookahead: must be >= 0, got {lookahead}")
+    if int(lookahead) >= 2**63:
+        raise ValueError(f"lookahead: {lookahead} is too large (at most 2**63 - 1 samples)")
     if method != "interpolated":
         raise ValueError(f"lookahead: only used by method 'interpolated'; must be None for {method!r}")
     return int(lookahead)
 
 
 def _as_signal(name: str, x: ArrayLike) -> NDArray[np.float64]:
-    a = np.ascontiguousarray(x, dtype=np.float64)
+    try:
+        a = np.ascontiguousarray(x, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: cannot be converted to a float64 array ({exc})") from None
     if a.ndim != 1:
         raise ValueError(f"{name}: expected a 1-D array, got shape {a.shape}")
     return a
@@ -230,24 +236,29 @@ class Inverter:
         return self._lookahead or 0
 
     @property
+    @one_thread
     def saturated(self) -> int:
         """Number of references so far outside the reachable output range."""
         return int(self._stream.saturated)
 
+    @one_thread
     def step(self, r: float) -> float:
         """One reference sample in, one input sample out (delayed by ``delay``)."""
-        return self._stream.step(float(r))
+        return self._stream.step(as_number("r", r))
 
+    @one_thread
     def process(self, block: ArrayLike) -> NDArray[np.float64]:
         """A block of reference samples in, as many input samples out. Same as calling
         :meth:`step` on each; a non-finite sample raises before any state changes."""
         return self._stream.process(_as_signal("block", block))
 
+    @one_thread
     def reset(self) -> None:
         """Back to negative saturation; the saturation count is cleared."""
         self._stream.reset()
 
     @property
+    @one_thread
     def state(self) -> dict[str, Any]:
         """Snapshot: ``memory`` is the memory staircase in level coordinates (0 = lo,
         n_h = hi; dominant extrema then the current input), ``saturated`` the count,
@@ -270,6 +281,7 @@ class Inverter:
         }
 
     @state.setter
+    @one_thread
     def state(self, s: dict[str, Any]) -> None:
         if not isinstance(s, dict):
             raise ValueError(f"state: expected a dict from Inverter.state, got {type(s).__name__}")
@@ -282,17 +294,16 @@ class Inverter:
                 f"state: taken from method={s['method']!r}, lookahead={s['lookahead']!r}; "
                 f"this inverter has method={self._method!r}, lookahead={self._lookahead!r}"
             )
-        knot_t = np.ascontiguousarray(s["knot_t"], dtype=np.uint64)
-        self._stream.set_state(
-            _as_signal("state", s["memory"]),
-            int(s["saturated"]),
-            int(s["t"]),
-            float(s["u_prev"]),
-            float(s["last_cm"]),
-            knot_t.reshape(-1),
-            _as_signal("state", s["knot_v"]),
-            float(s["r_prev"]),
-        )
+        try:
+            knot_t = np.ascontiguousarray(s["knot_t"], dtype=np.uint64).reshape(-1)
+            counts = [int(s[k]) for k in ("saturated", "t")]
+            if min(counts) < 0 or max(counts) >= 2**64:
+                raise ValueError(f"counts saturated, t = {counts} outside 0 .. 2**64 - 1")
+            values = [float(s[k]) for k in ("u_prev", "last_cm", "r_prev")]
+        except (TypeError, ValueError, OverflowError) as exc:
+            raise ValueError(f"state: not a snapshot from Inverter.state ({exc})") from None
+        self._stream.set_state(_as_signal("state", s["memory"]), counts[0], counts[1], values[0], values[1], knot_t,
+                               _as_signal("state", s["knot_v"]), values[2])
 
     def __repr__(self) -> str:
         la = "" if self._lookahead is None else f", lookahead={self._lookahead}"

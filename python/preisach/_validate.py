@@ -2,8 +2,16 @@
 with errors that name the argument and the problem."""
 from __future__ import annotations
 
+import functools
+from typing import Any, Callable, TypeVar, cast
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+#: Largest n_h of a model (the core's limit: the Everett table of (n_h + 1)^2 doubles).
+MAX_N_H = 16_000
 
 
 def as_signal(name: str, x: ArrayLike, *, allow_empty: bool = False) -> NDArray[np.float64]:
@@ -23,6 +31,16 @@ def as_signal(name: str, x: ArrayLike, *, allow_empty: bool = False) -> NDArray[
         what = "NaN" if np.isnan(a[i]) else "inf"
         raise ValueError(f"{name}: {what} at index {i}")
     return a
+
+
+def as_number(name: str, x: object) -> float:
+    """A real number (Python or NumPy; not a bool, a string or an array) as a float."""
+    if isinstance(x, bool) or not isinstance(x, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name}: expected a number, got {x!r}")
+    try:
+        return float(x)
+    except OverflowError:
+        raise ValueError(f"{name}: {x} is too large for a float64") from None
 
 
 def as_range(name: str, r: object) -> tuple[float, float]:
@@ -63,6 +81,8 @@ def check_range_reached(name: str, u: NDArray[np.float64], u_range: tuple[float,
     never crosses one (it stays outside the range, or inside one cell) leaves every mass
     unidentifiable."""
     lo, hi = u_range
+    if n_h > MAX_N_H:
+        return  # refused by the core, naming n_h, before anything is allocated
     centres = lo + (np.arange(n_h) + 0.5) * (hi - lo) / n_h
     side = np.searchsorted(centres, u, side="right")
     if np.all(side == side[0]):
@@ -70,3 +90,22 @@ def check_range_reached(name: str, u: NDArray[np.float64], u_range: tuple[float,
         raise ValueError(f"{name}: no relay of the model range ({lo:.6g}, {hi:.6g}) would switch: the input "
                          f"({float(u.min()):.6g} .. {float(u.max()):.6g}) lies {where}; give a range the input "
                          "sweeps (the default fits the input)")
+
+
+def one_thread(method: _F) -> _F:
+    """Method decorator for objects with state (streams, inverters, stages): a call made
+    while another thread is inside the same object raises a clear ``RuntimeError``
+    naming the class, instead of the compiled module's bare "Already borrowed". The
+    object is unchanged by the refused call."""
+
+    @functools.wraps(method)
+    def wrapper(self: Any, *args: Any, **kwargs: Any) -> Any:
+        try:
+            return method(self, *args, **kwargs)
+        except RuntimeError as exc:
+            if "borrowed" not in str(exc):
+                raise
+            raise RuntimeError(f"{type(self).__name__}: in use by another thread; give each thread its own "
+                               "(or guard it with a lock)") from None
+
+    return cast(_F, wrapper)

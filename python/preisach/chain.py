@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from preisach import _preisach
-from preisach._validate import as_signal
+from preisach._validate import as_number, as_signal, one_thread
 from preisach.io import PathLike, write_text
 from preisach.model import PreisachModel
 
@@ -60,7 +60,10 @@ def sample_period(t: ArrayLike, what: str = "t") -> float:
     be regular (within a quarter period of the line through its ends; the rounding of a
     stored time axis passes, a missing sample does not). Errors name ``what`` and the
     row."""
-    tt = np.ascontiguousarray(t, dtype=np.float64).ravel()
+    try:
+        tt = np.ascontiguousarray(t, dtype=np.float64).ravel()
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{what}: cannot be converted to a float64 array ({exc})") from None
     try:
         return float(_preisach.sample_period(tt))
     except ValueError as exc:
@@ -97,13 +100,16 @@ def _json_default(o: Any) -> Any:
 def _dumps(x: Any, what: str) -> str:
     """JSON text of ``x``; a non-finite number or an object JSON cannot hold is a
     ValueError naming ``what`` and where it is."""
-    bad = _non_finite(x, "")
+    try:
+        bad = _non_finite(x, "")
+    except RecursionError:
+        raise ValueError(f"{what}: nested too deeply") from None
     if bad is not None:
         name, _, value = bad.partition(" = ")
         raise ValueError(f"{what}: {name}: must be finite, got {value}")
     try:
         return json.dumps(x, allow_nan=False, default=_json_default)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, RecursionError) as exc:
         raise ValueError(f"{what}: cannot be written as JSON ({exc})") from None
 
 
@@ -251,6 +257,7 @@ class Chain:
         return list(self._core.kinds())
 
     # --- records -------------------------------------------------------------------
+    @one_thread
     def predict(self, t: ArrayLike, u: ArrayLike, initial_input: Optional[float] = None) -> NDArray[np.float64]:
         """Deterministic output for input ``u`` sampled at times ``t`` (seconds, strictly
         increasing and regular; the rate is taken from ``t``, and ``t`` is the absolute
@@ -258,6 +265,7 @@ class Chain:
         input linear between samples. ``initial_input`` overrides the chain's own."""
         return self._record(self._core.predict, t, u, initial_input)
 
+    @one_thread
     def simulate(self, t: ArrayLike, u: ArrayLike, initial_input: Optional[float] = None) -> NDArray[np.float64]:
         """The simulated measurement of input ``u`` at times ``t``: sample by sample at
         the rate of ``t`` (input held over each sample interval), with noise (from its
@@ -330,30 +338,36 @@ class Chain:
 
     # --- per sample at the chain's own rate ------------------------------------------
     @property
+    @one_thread
     def time_s(self) -> float:
         """Absolute time of the next sample, seconds (drift depends on it)."""
         return float(self._core.time_s)
 
     @time_s.setter
+    @one_thread
     def time_s(self, t: float) -> None:
-        self._core.time_s = float(t)
+        self._core.time_s = as_number("time_s", t)
 
+    @one_thread
     def run(self, u: ArrayLike) -> NDArray[np.float64]:
         """Run the input ``u`` (1-D, finite) from the current state at the chain's own
         rate; returns ``y`` (float64, same length). State and time carry over."""
         return self._core.run(as_signal("u", u, allow_empty=True))  # type: ignore[no-any-return]
 
+    @one_thread
     def step(self, u: float) -> float:
         """One sample."""
         if isinstance(u, bool) or not isinstance(u, (int, float, np.integer, np.floating)):
             raise ValueError(f"u: expected a number, got {u!r}")
         return float(self._core.step(float(u)))
 
+    @one_thread
     def reset(self) -> None:
         """Back to rest, time 0, noise streams from their seeds: a replay is identical.
         The next sample finds every block in equilibrium with the initial input."""
         self._core.reset()
 
+    @one_thread
     def reset_state(self) -> None:
         """Back to rest for a new record; absolute time and noise streams run on."""
         self._core.reset_state()
@@ -374,6 +388,8 @@ class Chain:
             d = json.loads(text)
         except json.JSONDecodeError as exc:
             raise ValueError(f"corrupt chain: not JSON ({exc})") from None
+        except RecursionError:
+            raise ValueError("corrupt chain: not JSON (nested too deeply)") from None
         _check_finite(d)
         return cls._wrap(_preisach.Chain.from_json(text))
 

@@ -167,7 +167,10 @@ def _cmd_simulate(a: argparse.Namespace) -> int:
         raise UsageError("preisach simulate: give either STAGE.json or --preset NAME (see --help)")
     chain = Stage.preset(a.preset) if a.preset is not None else _load_chain(a.stage)
     rec = read_record(a.input, ["t", "u"])
-    y = chain.simulate(rec["t"], rec["u"])
+    try:
+        y = chain.simulate(rec["t"], rec["u"])
+    except ValueError as exc:  # e.g. a block the input's rate cannot run: name the record
+        raise ValueError(f"{a.input}: {exc}") from None
     write_csv(a.output_path, {"t": rec["t"], "u": rec["u"], "y": y})
     fs = (rec["t"].size - 1) / (rec["t"][-1] - rec["t"][0]) if rec["t"].size > 1 else float("nan")
     print(f"wrote {a.output_path} ({len(y)} samples at the input's {fs:g} Hz)")
@@ -419,7 +422,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             parser.print_help()
             return 2
         _preflight(args)
-        code = int(args.func(args))
+        before = _existing_outputs(args)
+        try:
+            code = int(args.func(args))
+        except KeyboardInterrupt:
+            _remove_new_outputs(args, before)
+            raise
         sys.stdout.flush()  # a closed pipe shows here, inside the handler, not at exit
         return code
     except UsageError as exc:
@@ -433,6 +441,44 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except KeyboardInterrupt:
         print("preisach: interrupted", file=sys.stderr)
         return 130
+
+
+def _existing_outputs(a: argparse.Namespace) -> set[str]:
+    """The files (and directories) already present at the command's output paths."""
+    from pathlib import Path
+
+    found: set[str] = set()
+    for attr, (_, is_dir) in OUTPUTS.items():
+        path = getattr(a, attr, None)
+        if path is None:
+            continue
+        p = Path(path)
+        if p.exists():
+            found.add(str(p))
+            if is_dir and p.is_dir():
+                found.update(str(q) for q in p.rglob("*"))
+    return found
+
+
+def _remove_new_outputs(a: argparse.Namespace, before: set[str]) -> None:
+    """After Ctrl-C: remove what the interrupted command created at its output paths
+    (files it wrote, directories it made), so no partial output is left. Files that
+    were there before stay (each was either kept or replaced whole by an atomic write)."""
+    import shutil
+    from pathlib import Path
+
+    for attr, (_, is_dir) in OUTPUTS.items():
+        path = getattr(a, attr, None)
+        if path is None:
+            continue
+        p = Path(path)
+        new = [p] if str(p) not in before else (
+            [q for q in p.rglob("*") if str(q) not in before] if is_dir and p.is_dir() else [])
+        for q in sorted(new, key=lambda q: len(q.parts), reverse=True):
+            if q.is_dir() and not q.is_symlink():
+                shutil.rmtree(q, ignore_errors=True)
+            elif q.exists() or q.is_symlink():
+                q.unlink()
 
 
 def _closed_pipe() -> int:

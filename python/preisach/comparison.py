@@ -29,8 +29,11 @@ def fit_percent(y: ArrayLike, y_hat: ArrayLike) -> float:
     yh = as_signal("y_hat", y_hat)
     if yy.shape != yh.shape:
         raise ValueError(f"y_hat: length {yh.size} does not match y (length {yy.size})")
-    num = float(np.linalg.norm(yy - yh))
-    den = float(np.linalg.norm(yy - yy.mean()))
+    # Scaled by the largest magnitude, so values near the float64 limits do not overflow.
+    scale = float(max(np.abs(yy).max(), np.abs(yh).max())) or 1.0
+    a, b = yy / scale, yh / scale
+    num = float(np.linalg.norm(a - b))
+    den = float(np.linalg.norm(a - a.mean()))
     if den == 0.0:
         return float("nan") if num == 0.0 else float("-inf")
     return 100.0 * (1.0 - num / den)

@@ -74,11 +74,11 @@ def _line(first: Optional[int], i: int) -> str:
 def _read_npz(p: Path) -> dict[str, NDArray[np.float64]]:
     cols: dict[str, NDArray[np.float64]] = {}
     try:
-        with np.load(p, allow_pickle=False) as z:
+        with open(p, "rb") as f, np.load(f, allow_pickle=False) as z:  # our handle: closed on any error
             for k in z.files:
                 cols[k] = np.asarray(z[k], dtype=np.float64).ravel()
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{p}: not a readable .npz file ({exc})") from None
+    except Exception as exc:  # zipfile, zlib and numpy raise many kinds on corrupt files
+        raise ValueError(f"{p}: not a readable .npz file ({type(exc).__name__}: {exc})") from None
     return cols
 
 
@@ -127,9 +127,12 @@ def check_writable(path: PathLike, what: str, directory: bool = False) -> None:
 
 
 def atomic_write(path: PathLike, write: Callable[[str], None]) -> None:
-    """Call ``write(tmp)`` on a temporary file beside ``path``, then rename it over
-    ``path``. On any error the temporary file is removed and ``path`` is untouched; an
-    ``OSError`` is reported as a ``ValueError`` naming ``path`` (not the temporary file)."""
+    """Call ``write(tmp)`` on a temporary file beside ``path``, flush it to disk
+    (``fsync``), then rename it over ``path`` and flush the directory. A process killed
+    at any point leaves the old file or the new one, never a torn one (at worst a
+    stray ``.NAME.*.tmp`` beside it). On any error the temporary file is removed and
+    ``path`` is untouched; an ``OSError`` is reported as a ``ValueError`` naming
+    ``path`` (not the temporary file)."""
     p = Path(path)
     d = p.parent if str(p.parent) else Path(".")
     try:
@@ -143,13 +146,33 @@ def atomic_write(path: PathLike, write: Callable[[str], None]) -> None:
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
+        _fsync(tmp)
         os.replace(tmp, p)
+        _fsync(d, directory=True)
     except OSError as exc:
         _unlink(tmp)
         raise ValueError(f"{p}: cannot write ({exc.strerror or exc})") from None
     except BaseException:
         _unlink(tmp)
         raise
+
+
+def _fsync(path: PathLike, directory: bool = False) -> None:
+    """Flush a file's (or a directory's entries') data to disk. Directories that cannot
+    be opened or synced (some file systems) are skipped."""
+    try:
+        fd = os.open(path, os.O_RDONLY | (getattr(os, "O_DIRECTORY", 0) if directory else 0))
+    except OSError:
+        if directory:
+            return
+        raise
+    try:
+        os.fsync(fd)
+    except OSError:
+        if not directory:
+            raise
+    finally:
+        os.close(fd)
 
 
 def _unlink(path: str) -> None:

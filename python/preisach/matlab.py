@@ -44,6 +44,10 @@ from preisach.io import PathLike
 
 __all__ = ["Channel", "list_channels", "printable", "read_mat", "sample_rate", "select", "write_model_mat"]
 
+#: Most values one variable of a MAT file may declare (2^27 doubles: 1 GiB), checked
+#: from the file's headers before any data is read.
+MAX_MAT_VALUES = 2**27
+
 #: The one-line hint when SciPy is missing.
 SCIPY_HINT = "MAT files need SciPy: pip install 'preisach[mat]'"
 
@@ -104,11 +108,25 @@ def _loadmat(p: Path) -> dict[str, Any]:
         raise ValueError(f"{p}: MAT v7.3 (HDF5) files are not supported; save it in MATLAB with "
                          f"save('{p.name}', ..., '-v7') and import that")
     try:
+        _check_sizes(p, scipy.io.whosmat(str(p)))
         return dict(scipy.io.loadmat(str(p), squeeze_me=True, struct_as_record=False, chars_as_strings=True))
+    except ValueError as exc:
+        if str(exc).startswith(f"{p}: "):
+            raise
+        raise ValueError(f"{p}: not a readable MAT file (ValueError: {exc})") from None
     except NotImplementedError as exc:  # scipy's message for v7.3
         raise ValueError(f"{p}: {exc}; save it in MATLAB with '-v7'") from None
     except Exception as exc:  # scipy raises many kinds on corrupt files
         raise ValueError(f"{p}: not a readable MAT file ({type(exc).__name__}: {exc})") from None
+
+
+def _check_sizes(p: Path, variables: list[tuple[str, tuple[int, ...], str]]) -> None:
+    """Refuse a variable whose declared dimensions exceed :data:`MAX_MAT_VALUES`."""
+    for name, shape, _ in variables:
+        n = int(np.prod([int(k) for k in shape], dtype=object))
+        if n > MAX_MAT_VALUES:
+            raise ValueError(f"{p}: variable {printable(name)} declares {'x'.join(map(str, shape))} = {n} values, "
+                             f"above the limit of {MAX_MAT_VALUES} (1 GiB of doubles)")
 
 
 def _is_struct(x: Any) -> bool:

@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from preisach import _preisach
-from preisach._validate import as_n_h, as_range, as_signal, check_range_reached, upper_triangular
+from preisach._validate import as_n_h, as_number, as_range, as_signal, check_range_reached, one_thread, upper_triangular
 from preisach.io import PathLike, write_text
 
 if TYPE_CHECKING:
@@ -355,24 +355,30 @@ class FittedModel(PreisachModel):
 
 class Stream:
     """Sample-by-sample forward operator. ``step(u) -> float``, ``process(block) ->
-    ndarray``; ``state`` gets a snapshot (input values) and restores one when set."""
+    ndarray``; ``state`` gets a snapshot (input values) and restores one when set.
+    One stream serves one thread at a time: a call while another thread is inside it
+    raises ``RuntimeError`` (give each thread its own stream)."""
 
     def __init__(self, core: Any) -> None:
         self._core = core
 
+    @one_thread
     def step(self, u: float) -> float:
         """Advance one sample and return the output."""
-        return float(self._core.step(float(u)))
+        return float(self._core.step(as_number("u", u)))
 
+    @one_thread
     def process(self, block: ArrayLike) -> NDArray[np.float64]:
         """Advance over a block of samples; returns the outputs."""
         return self._core.process(as_signal("block", block, allow_empty=True))
 
     @property
+    @one_thread
     def state(self) -> NDArray[np.float64]:
         """Snapshot of the memory: dominant extrema then the current input (input units)."""
         return self._core.get_state()
 
     @state.setter
+    @one_thread
     def state(self, value: ArrayLike) -> None:
         self._core.set_state(as_signal("state", value, allow_empty=True))

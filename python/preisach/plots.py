@@ -15,6 +15,7 @@ from typing import Any, Mapping, Optional, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
+from preisach._validate import as_number, as_signal
 from preisach.io import PathLike, atomic_write
 
 __all__ = ["HINT", "available", "plot_compare", "plot_errors", "plot_loop", "plot_spectra", "plot_tracking",
@@ -40,6 +41,16 @@ def _plt() -> Any:
     return plt
 
 
+def _signals(**arrays: ArrayLike) -> list[Any]:
+    """The arrays as 1-D finite float64 of one length; errors name the argument."""
+    out = [as_signal(name, x) for name, x in arrays.items()]
+    first = next(iter(arrays))
+    for name, a in zip(arrays, out):
+        if a.size != out[0].size:
+            raise ValueError(f"{name}: length {a.size} does not match {first} (length {out[0].size})")
+    return out
+
+
 def _save(fig: Any, path: PathLike) -> str:
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
@@ -56,6 +67,10 @@ def _save(fig: Any, path: PathLike) -> str:
 def plot_weights(model: Any, path: PathLike, input_unit: str = "V", output_unit: str = "V") -> str:
     """The Preisach weights as a heatmap over the (α, β) half plane (the paper's Fig. 6b): α
     (switch-on level) across, β (switch-off level) up, cells below the diagonal blank."""
+    from preisach.model import PreisachModel
+
+    if not isinstance(model, PreisachModel):
+        raise ValueError(f"model: expected a preisach.PreisachModel, got {type(model).__name__}")
     plt = _plt()
     w = np.asarray(model.weights, dtype=np.float64)
     n = w.shape[0]
@@ -73,8 +88,8 @@ def plot_loop(t: ArrayLike, u: ArrayLike, measured: ArrayLike, model: ArrayLike,
               input_unit: str = "V", output_unit: str = "V", title: str = "") -> str:
     """Model vs measurement (the paper's Fig. 8): (a) both over time, (b) the hysteresis loop
     output against input."""
+    t, u, ym, yp = _signals(t=t, u=u, measured=measured, model=model)
     plt = _plt()
-    t, u, ym, yp = (np.asarray(a, dtype=np.float64) for a in (t, u, measured, model))
     fig, ax = plt.subplots(1, 2, figsize=(12, 4.6))
     ax[0].plot(t, ym, "k", lw=0.9, label="measured")
     ax[0].plot(t, yp, "tab:red", lw=0.9, ls="--", label="model")
@@ -93,8 +108,8 @@ def plot_tracking(t: ArrayLike, reference: ArrayLike, measured: ArrayLike, path:
                   unit: str = "V", title: str = "") -> str:
     """Tracking (the paper's Fig. 12): (a) reference, measurement and error over time,
     (b) measurement against reference (a straight line when hysteresis is compensated)."""
+    t, r, y = _signals(t=t, reference=reference, measured=measured)
     plt = _plt()
-    t, r, y = (np.asarray(a, dtype=np.float64) for a in (t, reference, measured))
     fig, ax = plt.subplots(1, 2, figsize=(12, 4.6))
     ax[0].plot(t, r, "k", lw=0.9, label="reference")
     ax[0].plot(t, y, "tab:blue", lw=0.8, label="measured")
@@ -129,14 +144,19 @@ def plot_spectra(signals: Mapping[str, ArrayLike], sample_rate_hz: float, path: 
     """Amplitude spectra (Hann window, one-sided, amplitude units) of several signals,
     e.g. the inverted inputs of each method; ``mark_hz`` draws a dotted line (such as
     the stage's resonance)."""
+    if not isinstance(signals, Mapping) or not signals:
+        raise ValueError(f"signals: expected a non-empty dict of name -> array, got {type(signals).__name__}")
+    arrays = {str(name): as_signal(f"signals[{name!r}]", x) for name, x in signals.items()}
+    fs = as_number("sample_rate_hz", sample_rate_hz)
+    if not (np.isfinite(fs) and fs > 0):
+        raise ValueError(f"sample_rate_hz: must be finite and > 0, got {fs}")
     plt = _plt()
     fig, ax = plt.subplots(figsize=(9, 4.8))
-    for name, x in signals.items():
-        a = np.asarray(x, dtype=np.float64)
+    for name, a in arrays.items():
         a = a - a.mean()
         win = np.hanning(a.size)
         spec = 2 * np.abs(np.fft.rfft(a * win)) / win.sum()
-        f = np.fft.rfftfreq(a.size, 1.0 / sample_rate_hz)
+        f = np.fft.rfftfreq(a.size, 1.0 / fs)
         ax.loglog(f[1:], np.maximum(spec[1:], 1e-12), lw=0.7, label=name)
     if mark_hz:
         ax.axvline(mark_hz, color="k", ls=":", lw=0.8, label=f"{mark_hz:g} Hz")

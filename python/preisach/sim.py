@@ -199,8 +199,8 @@ def run_loop(model: Any, stage: Chain, reference: ArrayLike, method: str = "cont
     if lookahead is not None:
         if method != "interpolated":
             raise ValueError(f"lookahead: only meaningful for method 'interpolated', not {method!r}")
-        if isinstance(lookahead, bool) or not isinstance(lookahead, (int, np.integer)) or lookahead < 0:
-            raise ValueError(f"lookahead: expected an integer >= 0, got {lookahead!r}")
+        if isinstance(lookahead, bool) or not isinstance(lookahead, (int, np.integer)) or not 0 <= lookahead < 2**63:
+            raise ValueError(f"lookahead: expected an integer in 0 .. 2**63 - 1, got {lookahead!r}")
         lookahead = int(lookahead)
     core = None
     if method != "identity":

@@ -212,7 +212,10 @@ pub fn closest_level(model: &PreisachModel, mem: &StepMemory, r: f64, tol: f64) 
     let e_hi = if k1 <= n { y_hi - r } else { f64::INFINITY };
     let e_lo = if k1 >= 1 { r - y_lo } else { f64::INFINITY };
     let best = e_hi.min(e_lo);
-    let (lo_thr, hi_thr) = (r - best - tol, r + best + tol);
+    // The thresholds hold the best output itself: `r ∓ best` alone can round past it
+    // when r is far outside the reachable range (large r, small outputs).
+    let y_best = if e_hi <= e_lo { y_hi } else { y_lo };
+    let (lo_thr, hi_thr) = ((r - best).min(y_best) - tol, (r + best).max(y_best) + tol);
 
     let k = if yp < lo_thr {
         // Below the minimal-error run: take its first level, in (p, k1].
@@ -225,7 +228,7 @@ pub fn closest_level(model: &PreisachModel, mem: &StepMemory, r: f64, tol: f64) 
     } else {
         p // the previous level is itself optimal: ties stay put
     };
-    (k as u32, sat)
+    (k.clamp(0, n) as u32, sat)
 }
 
 /// Closest match over a whole reference from memory `mem` (advanced in place). Writes

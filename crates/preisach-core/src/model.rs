@@ -38,6 +38,13 @@ impl PreisachModel {
         }
         check_scalar("offset", offset)?;
         let everett = Everett::new(grid.n_h(), &masses);
+        // Outputs are sums of ± Everett values plus the offset: keep them in range.
+        if !(4.0 * everett.total() + offset.abs()).is_finite() {
+            return Err(PreisachError::invalid(
+                "weights",
+                format!("the masses sum to {:e}, too large: the outputs would overflow float64", everett.total()),
+            ));
+        }
         Ok(PreisachModel { grid, masses, offset, everett })
     }
 

@@ -60,6 +60,9 @@ fn fit<'py>(
     })
 }
 
+/// Most values the dense rows of [`regression_rows`] may hold (2^27 doubles: 1 GiB).
+const MAX_DENSE_ROWS_VALUES: usize = 1 << 27;
+
 /// The merged regression rows in mass coordinates: (A (rows, n_q + 1) with the offset
 /// column last, counts, targets, within-row sum of squares). Objective:
 /// (Σ counts·(A x − targets)² + within) / n_samples. Dense: for tests and
@@ -85,17 +88,31 @@ fn regression_rows<'py>(
         let grid = Grid::new(u_range.0, u_range.1, n_h).map_err(to_py)?;
         let n_q = grid.n_q();
         // Without the GIL: the diagnoser builds rows for several candidates in threads.
-        let (a, rows) = py.detach(|| {
-            let rows = build_rows(&grid, u, y, interpolated);
-            let m = rows.n_rows();
-            let mut a = vec![0.0; m * (n_q + 1)];
-            for r in 0..m {
-                let row = &mut a[r * (n_q + 1)..(r + 1) * (n_q + 1)];
-                rows.add_mass_row(r, 1.0, &mut row[..n_q]);
-                row[n_q] = rows.offset_coef[r];
-            }
-            (a, rows)
-        });
+        let (a, rows) = py
+            .detach(|| {
+                let rows = build_rows(&grid, u, y, interpolated);
+                let m = rows.n_rows();
+                let values = m.saturating_mul(n_q + 1);
+                if values > MAX_DENSE_ROWS_VALUES {
+                    return Err(preisach_core::PreisachError::invalid(
+                        "n_h",
+                        format!(
+                            "{n_h}: the dense rows would hold {m} x {} values ({:.1} GB), above the limit of \
+                         {MAX_DENSE_ROWS_VALUES} values",
+                            n_q + 1,
+                            values as f64 * 8e-9
+                        ),
+                    ));
+                }
+                let mut a = vec![0.0; values];
+                for r in 0..m {
+                    let row = &mut a[r * (n_q + 1)..(r + 1) * (n_q + 1)];
+                    rows.add_mass_row(r, 1.0, &mut row[..n_q]);
+                    row[n_q] = rows.offset_coef[r];
+                }
+                Ok((a, rows))
+            })
+            .map_err(to_py)?;
         let m = rows.n_rows();
         let a = a.into_pyarray(py).reshape([m, n_q + 1])?;
         Ok((a, rows.weight.into_pyarray(py), rows.target.into_pyarray(py), rows.within_ss))

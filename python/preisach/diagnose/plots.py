@@ -1,10 +1,12 @@
 """PNG plots of a diagnosis (matplotlib is an optional extra, imported lazily)."""
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Any
 
 from preisach.diagnose.where import spectrum
+from preisach.io import atomic_write
 
 
 def _plt() -> Any:
@@ -16,6 +18,10 @@ def _plt() -> Any:
     except ImportError:
         raise ValueError("--plots needs matplotlib: pip install 'preisach[plot]'") from None
     return plt
+
+
+def _save_png(fig: Any, path: str) -> None:
+    fig.savefig(path, dpi=90, format="png")
 
 
 def plot_report(rep: Any, directory: Any) -> list[str]:
@@ -47,7 +53,7 @@ def plot_report(rep: Any, directory: Any) -> list[str]:
         ax[2].set(xlabel="t [s]", ylabel="y")
         fig.tight_layout()
         name = d / f"record{i}_{Path(r.name).stem.replace(' ', '_')}.png"
-        fig.savefig(name, dpi=90)
+        atomic_write(name, functools.partial(_save_png, fig))
         plt.close(fig)
         files.append(str(name))
     return files

@@ -284,7 +284,10 @@ impl Chain {
             _ => {
                 return Err(PreisachError::corrupt(
                     "chain",
-                    format!("unsupported version {}, this build reads versions 1 and 2", obj["version"]),
+                    format!(
+                        "unsupported version {}, this build reads versions 1 and 2",
+                        obj.get("version").unwrap_or(&Value::Null)
+                    ),
                 ))
             }
         }

@@ -405,7 +405,7 @@ impl DelayLine {
         if d > MAX_DELAY_SAMPLES {
             return Err(PreisachError::invalid(
                 "delay_s",
-                format!("{delay_s} s is {d:.0} samples, above the limit of {MAX_DELAY_SAMPLES:.0}"),
+                format!("{delay_s:e} s is {d:.3e} samples, above the limit of {MAX_DELAY_SAMPLES:.0}"),
             ));
         }
         let mut n_int = d.floor() as usize;

@@ -1,0 +1,131 @@
+"""The long fuzz campaign, outside CI: the fuzz tests of tests/test_fuzz_*.py with many
+more cases per entry point (hypothesis profile ``campaign``) and the Rust properties
+of crates/preisach-core/tests/fuzz.rs (proptest), then a table of cases tried, how each
+ended, crashes and hangs.
+
+    python benches/fuzz_campaign.py                 # 10^5 cases per Python fuzz test
+    python benches/fuzz_campaign.py --cases 2000    # shorter
+    python benches/fuzz_campaign.py --cases 2000 --rust-cases 20000
+
+A crash (the process dies) or a hang (one call over tests/fuzzing.py's HANG_S; the
+watchdog ends the process) makes that file's run fail and is counted. Every Python call
+either returned or was refused with a ValueError naming its argument (the contract of
+tests/fuzzing.py; anything else fails the test and shows here as a failure). Run from
+the repository root with the package installed (``maturin develop``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))
+from machine import describe  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+FILES = ("tests/test_fuzz_api.py", "tests/test_fuzz_files.py", "tests/test_faults.py")
+
+
+def run_python(cases: int, workers: int) -> tuple[dict[str, dict[str, int]], list[str], float]:
+    """Each fuzz file in its own pytest process; returns tallies per test, failures."""
+    tally: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
+    problems: list[str] = []
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as d:
+        procs = []
+        for f in FILES:
+            stats = Path(d) / (Path(f).stem + ".jsonl")
+            env = dict(os.environ, HYPOTHESIS_PROFILE="campaign", FUZZ_EXAMPLES=str(cases), FUZZ_STATS=str(stats),
+                       OPENBLAS_NUM_THREADS="1")
+            cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-x", f]
+            if f.endswith("test_faults.py"):
+                cmd += ["-k", "inputs_are_never_modified"]
+            procs.append((f, stats, subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE,
+                                                     stderr=subprocess.STDOUT, text=True)))
+            if len(procs) >= workers:
+                _collect(procs.pop(0), tally, problems)
+        for p in procs:
+            _collect(p, tally, problems)
+    return tally, problems, time.perf_counter() - t0
+
+
+def _collect(item: tuple[str, Path, subprocess.Popen], tally: dict[str, dict[str, int]], problems: list[str]) -> None:
+    f, stats, p = item
+    out, _ = p.communicate()
+    if p.returncode != 0:
+        kind = "crash" if p.returncode < 0 else ("hang" if "Timeout (" in out else "failure")
+        problems.append(f"{f}: {kind} (exit {p.returncode})\n{out[-3000:]}")
+    if stats.exists():
+        for line in stats.read_text().splitlines():
+            d = json.loads(line)
+            tally[d["test"]][d["how"]] += d["n"]
+
+
+def run_rust(cases: int) -> tuple[str, bool, float]:
+    t0 = time.perf_counter()
+    env = dict(os.environ, PROPTEST_CASES=str(cases))
+    p = subprocess.run(["cargo", "test", "--profile", "fastdev", "-p", "preisach-core", "--test", "fuzz"],
+                       cwd=ROOT, env=env, capture_output=True, text=True)
+    return p.stdout + p.stderr, p.returncode == 0, time.perf_counter() - t0
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cases", type=int, default=100_000, help="hypothesis examples per Python fuzz test")
+    ap.add_argument("--rust-cases", type=int, default=None, help="proptest cases per Rust property (default: --cases)")
+    ap.add_argument("--workers", type=int, default=2, help="pytest processes at once")
+    ap.add_argument("--no-rust", action="store_true", help="skip the Rust properties")
+    ap.add_argument("--no-python", action="store_true", help="skip the Python fuzz tests")
+    a = ap.parse_args()
+    print(describe())
+    ok = a.no_python or python_table(a.cases, a.workers)
+    if not a.no_rust:
+        ok = rust_table(a.rust_cases or a.cases) and ok
+    return 0 if ok else 1
+
+
+def python_table(cases: int, workers: int) -> bool:
+    tally, problems, secs = run_python(cases, workers)
+    print(f"\nPython: {cases} examples per test (hypothesis profile 'campaign'), {secs:.0f} s\n")
+    print("| entry point (test) | calls | returned | refused (ValueError naming the argument) |")
+    print("|---|---:|---:|---:|")
+    total = 0
+    for test in sorted(tally):
+        d = tally[test]
+        n = d["returned"] + d["refused"]
+        total += n
+        print(f"| `{test}` | {n} | {d['returned']} | {d['refused']} |")
+    crashes = sum("crash" in p.split("\n")[0] for p in problems)
+    hangs = sum("hang" in p.split("\n")[0] for p in problems)
+    fails = len(problems) - crashes - hangs
+    print(f"\nPython calls: {total}; crashes: {crashes}; hangs: {hangs}; other failures: {fails}")
+    for p in problems:
+        print(p)
+    return not problems
+
+
+def rust_table(n: int) -> bool:
+    out, passed, secs = run_rust(n)
+    tests = [line.split()[1] for line in out.splitlines() if line.startswith("test ") and line.endswith(" ok")]
+    print(f"\nRust (proptest, crates/preisach-core/tests/fuzz.rs): {n} cases per property, "
+          f"{'all passed' if passed else 'FAILED'}, {secs:.0f} s\n")
+    print("| property | cases | result |")
+    print("|---|---:|---|")
+    src = (ROOT / "crates/preisach-core/tests/fuzz.rs").read_text()
+    plain = set(re.findall(r"fn (\w+)\(\)", src))  # regression tests: one case each
+    for t in tests:
+        print(f"| `{t}` | {1 if t in plain else n} | ok |")
+    if not passed:
+        print(out[-4000:])
+    return passed
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
