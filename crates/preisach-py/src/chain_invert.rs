@@ -3,11 +3,12 @@
 
 use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1};
 use preisach_core::chain_invert::{invert_chain, ChainInverter, ChainInverterState, Plan};
-use preisach_core::invert::{InverterState, Method};
+use preisach_core::invert::Method;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
+use crate::invert::inverter_state;
 use crate::sim::Chain;
 use crate::{guard, slice, to_py};
 
@@ -134,20 +135,7 @@ impl ChainInverseStream {
         r_prev: f64,
     ) -> PyResult<()> {
         guard(|| {
-            let kt = knot_t.as_slice().map_err(|_| PyValueError::new_err("state: knot times must be contiguous"))?;
-            let kv = slice("state", &knot_v)?;
-            if kt.len() != kv.len() {
-                return Err(PyValueError::new_err("state: knot times and values differ in length"));
-            }
-            let hysteresis = InverterState {
-                memory: slice("state", &memory)?.to_vec(),
-                saturated,
-                t,
-                u_prev,
-                last_cm,
-                knots: kt.iter().copied().zip(kv.iter().copied()).collect(),
-                r_prev,
-            };
+            let hysteresis = inverter_state(&memory, saturated, t, u_prev, last_cm, &knot_t, &knot_v, r_prev)?;
             let s = ChainInverterState {
                 n,
                 post: slice("state", &post)?.to_vec(),

@@ -130,23 +130,39 @@ impl InverseStream {
         r_prev: f64,
     ) -> PyResult<()> {
         guard(|| {
-            let kt = knot_t.as_slice().map_err(|_| PyValueError::new_err("state: knot times must be contiguous"))?;
-            let kv = slice("state", &knot_v)?;
-            if kt.len() != kv.len() {
-                return Err(PyValueError::new_err("state: knot times and values differ in length"));
-            }
-            let s = InverterState {
-                memory: slice("state", &memory)?.to_vec(),
-                saturated,
-                t,
-                u_prev,
-                last_cm,
-                knots: kt.iter().copied().zip(kv.iter().copied()).collect(),
-                r_prev,
-            };
+            let s = inverter_state(&memory, saturated, t, u_prev, last_cm, &knot_t, &knot_v, r_prev)?;
             self.inner.set_state(&s).map_err(to_py)
         })
     }
+}
+
+/// A hysteresis inverter's state from the plain numbers and arrays Python holds (the
+/// streaming inverter's and the chain inverter's `set_state`).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn inverter_state(
+    memory: &PyReadonlyArray1<'_, f64>,
+    saturated: u64,
+    t: u64,
+    u_prev: f64,
+    last_cm: f64,
+    knot_t: &PyReadonlyArray1<'_, u64>,
+    knot_v: &PyReadonlyArray1<'_, f64>,
+    r_prev: f64,
+) -> PyResult<InverterState> {
+    let kt = knot_t.as_slice().map_err(|_| PyValueError::new_err("state: knot times must be contiguous"))?;
+    let kv = slice("state", knot_v)?;
+    if kt.len() != kv.len() {
+        return Err(PyValueError::new_err("state: knot times and values differ in length"));
+    }
+    Ok(InverterState {
+        memory: slice("state", memory)?.to_vec(),
+        saturated,
+        t,
+        u_prev,
+        last_cm,
+        knots: kt.iter().copied().zip(kv.iter().copied()).collect(),
+        r_prev,
+    })
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
