@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import io
 import json
-import os
 import uuid
 import warnings
 from contextlib import redirect_stderr, redirect_stdout
