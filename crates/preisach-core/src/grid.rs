@@ -40,7 +40,7 @@ impl Grid {
                 "n_h",
                 format!(
                     "{n_h} is too large: the Everett table would need {:.1} GB (limit n_h <= {MAX_N_H})",
-                    ((n_h + 1) * (n_h + 1) * 8) as f64 / 1e9
+                    (n_h as f64 + 1.0).powi(2) * 8.0 / 1e9
                 ),
             ));
         }

@@ -8,7 +8,7 @@
 use std::sync::Arc;
 
 use preisach_core::blocks::{self, Chain};
-use preisach_core::identify::{fit, FitOptions, Solver};
+use preisach_core::identify::{fit, FitOptions, Solver, DEFAULT_DIAGONAL_FLOOR};
 use preisach_core::invert::{invert, Inverter, InverterState, Method};
 use preisach_core::{Grid, PreisachError, PreisachModel};
 use proptest::prelude::*;
@@ -212,10 +212,12 @@ proptest! {
     #[test]
     fn identify(u in signal(300), y in signal(300), n_h in prop_oneof![0usize..30, Just(100_000usize)],
                 lo in hostile(), hi in hostile(), reg in hostile(), interpolated in any::<bool>(),
-                solver in prop::sample::select(vec![Solver::Auto, Solver::Active, Solver::Structured])) {
+                solver in prop::sample::select(vec![Solver::Auto, Solver::Active, Solver::Structured]),
+                diagonal_floor in prop_oneof![Just(0.0), Just(DEFAULT_DIAGONAL_FLOOR), hostile()]) {
         let u_range = if lo.to_bits() % 3 == 0 { None } else { Some((lo, hi)) };
-        let opts = FitOptions { n_h, u_range, reg, solver, interpolated };
-        if let Some((m, rep)) = ok_or_named(fit(&u, &y, &opts), &["u", "y", "n_h", "u_range", "reg"])? {
+        let opts = FitOptions { n_h, u_range, reg, solver, interpolated, diagonal_floor };
+        let named = ["u", "y", "n_h", "u_range", "reg", "diagonal_floor"];
+        if let Some((m, rep)) = ok_or_named(fit(&u, &y, &opts), &named)? {
             prop_assert!(m.masses().iter().all(|w| w.is_finite() && *w >= 0.0));
             prop_assert!(rep.rmse.is_finite());
         }
