@@ -104,6 +104,8 @@ def _csv(cols: dict[str, np.ndarray]) -> bytes:
 
 
 GOOD_CSV = _csv({"t": np.arange(40) / 1e3, "u": sweep(40), "y": np.cos(np.arange(40))})
+#: A repeat of the same experiment (another output): the diagnosis refuses a holdout that is the training record.
+GOOD_REPEAT_CSV = _csv({"t": np.arange(40) / 1e3, "u": sweep(40), "y": np.cos(np.arange(40)) + 0.01})
 
 
 @given(data=st.data())
@@ -179,12 +181,13 @@ def test_cli_random_arguments(tmp_path, monkeypatch, cmd, args):
 def test_cli_on_mutated_model_files(tmp_path, data, name, cmd):
     p = scratch(tmp_path, ".json", data.draw(mutated_json(DOCS[name])).encode("utf-8", "surrogatepass"))
     rec = scratch(tmp_path, ".csv", GOOD_CSV)
+    hold = scratch(tmp_path, ".csv", GOOD_REPEAT_CSV)
     ref = scratch(tmp_path, ".csv", _csv({"t": np.arange(20) / 1e3, "r": np.linspace(0.0, 2.0, 20)}))
     out = str(tmp_path / "out.x")
     argv = {"predict": ["predict", str(p), str(rec), "-o", out], "compare": ["compare", str(p), str(rec)],
             "invert": ["invert", str(p), str(ref), "-o", out], "simulate": ["simulate", str(p), str(rec), "-o", out],
             "export-mat": ["export-mat", str(p), "-o", out],
-            "diagnose-baseline": ["diagnose", str(rec), "--holdout", str(rec), "--baseline", str(p), "--json", out,
+            "diagnose-baseline": ["diagnose", str(rec), "--holdout", str(hold), "--baseline", str(p), "--json", out,
                                   "--n-h", "4"]}[cmd]
     code, _, err = run_cli(argv)
     assert code in (0, 1), (code, err)
