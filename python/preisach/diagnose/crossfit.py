@@ -2,10 +2,16 @@
 
 The stepwise search fits effects on the training record, so an effect the training
 record does not carry (the model identified on a clean sensor channel, the loop reading
-a delayed one) is not found there. Here the effect's parameter is fitted on some
-holdouts, with the chain found (masses and effects) fixed, and scored on the others:
-leave one holdout out, or, with a single holdout, one half against the other. No
-scored sample was used to fit the parameter it is scored with.
+a delayed one; a mode the slow identification sine does not excite) is not found there.
+Here the effect is fitted on part of the holdouts and scored on the rest; no scored
+sample was used to fit the parameters it is scored with:
+
+- a delay (``holdout_delay``): only the delay added to the chain found (masses and
+  effects fixed), fitted on the other holdouts (leave one out) or, with a single
+  holdout, one half against the other;
+- any other fast effect (``holdout_halves``): its own search on half of a holdout (the
+  masses profiled there), then the chain found with it, masses from the training record,
+  scores the other halves of every holdout; the other half likewise.
 """
 from __future__ import annotations
 
@@ -14,8 +20,10 @@ from typing import Any, Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from preisach.diagnose.effects import FitState, Record, _grid_then_parabola
-from preisach.diagnose.ranges import Bound, delay_grid
+from preisach.diagnose.effects import FitState, Record, _grid_then_parabola, rmse
+from preisach.diagnose.ranges import Bound, Ranges, delay_grid
+from preisach.diagnose.registry import REGISTRY
+from preisach.diagnose.search import Effects, Fitter, Trials
 
 Errors = Callable[[FitState], list[NDArray[np.float64]]]
 
@@ -79,3 +87,84 @@ def consistent(folds: list[dict[str, Any]], min_delay: float) -> bool:
     channel's delay is the same on every record it reads)."""
     ds = [float(f["added_s"]) for f in folds]
     return min(ds) >= min_delay and max(ds) <= 1.25 * min(ds)
+
+
+# -- any effect, on halves of the holdouts ----------------------------------------------
+def half(rec: Record, k: int) -> Record:
+    """The first (``k`` = 0) or second half of a record, as a record of its own (it
+    starts at rest: the masses profiled on it absorb part of the unknown memory)."""
+    m = rec.y.size // 2
+    sl = slice(0, m) if k == 0 else slice(m, None)
+    return Record(f"{rec.name} {HALF[k]} half", rec.t[sl], rec.u[sl], rec.y[sl], rec.dt)
+
+
+HALF = ("first", "second")
+
+
+def fit_on(rec: Record, st: FitState, name: str, u_range: tuple[float, float], search_rate_hz: float,
+           trials: Trials) -> tuple[Effects, Ranges]:
+    """The chain ``st`` plus effect ``name``, searched on ``rec`` (window averages down to
+    about ``search_rate_hz``; the masses profiled on it, a mode's band fit behind the
+    chain's own masses), and the ranges searched (from ``rec``)."""
+    stride = max(1, int(round(1.0 / (rec.dt * search_rate_hz))))
+    f = Fitter(rec, st.model.n_h, u_range, stride, trials=trials)
+    with trials.search():
+        eff = REGISTRY[name].fit(f, st.effects, f.hysteresis(st.model, {}))
+    return eff, f.ranges
+
+
+def with_effect(train: Fitter, st: FitState, eff: Effects) -> tuple[FitState, str]:
+    """The chain ``st`` with the fast effects of ``eff`` (fitted elsewhere) and its own
+    slow ones: the training masses kept, or refitted on the training record with the
+    effects fixed when that fits it better (the masses absorb the effect there too).
+    Returns the chain and which masses it has."""
+    e = {k: dict(v) for k, v in eff.items() if not (k in REGISTRY and REGISTRY[k].slow)}
+    e.update({k: dict(v) for k, v in st.effects.items() if k in REGISTRY and REGISTRY[k].slow})
+    if train.J(e) < train.J(st.effects):
+        return train.state(e, n_h=st.model.n_h), "refitted on the training record with the effect fixed"
+    return FitState(st.model, e, st.train_rmse), "the training record's"
+
+
+def agree(name: str, params: list[dict[str, Any]]) -> bool:
+    """The folds found the same effect: its leading scalar within the registry's
+    tolerance of each other."""
+    key, tol = REGISTRY[name].agree
+    v = [float(p[key]) for p in params]
+    return min(v) > 0 and max(v) <= (1 + tol) * min(v)
+
+
+def holdout_halves(st: FitState, name: str, hos: list[Record], errors: Errors, train: Fitter,
+                   search_rate_hz: float, trials: Trials) -> dict[str, Any]:
+    """Effect ``name`` cross-fitted on the holdouts' halves: for each half (first,
+    second), fitted on that half of the holdout whose current error there is largest
+    (where the effect shows), and every holdout's other half scored with it.
+
+    Returns ``errors`` (per holdout, each half scored with the effect fitted on a first
+    or second half: never on itself), ``folds`` (what was fitted on what, the parameters
+    found and the masses used; ``_state``, ``_ranges`` internal) and ``target`` (the
+    holdout the effect shows most on)."""
+    cur = errors(st)
+    out = [np.empty(h.y.size) for h in hos]
+    folds = []
+    for k in (0, 1):
+        sl = [slice(0, h.y.size // 2) if k == 0 else slice(h.y.size // 2, None) for h in hos]
+        i = int(np.argmax([rmse(e[s]) for e, s in zip(cur, sl)]))
+        part = half(hos[i], k)
+        eff, rg = fit_on(part, st, name, train.u_range, search_rate_hz, trials)
+        sk, masses = with_effect(train, st, eff)
+        for o, e, s in zip(out, errors(sk), sl):
+            other = np.ones(e.size, dtype=bool)
+            other[s] = False
+            o[other] = e[other]
+        folds.append({"fit": part.name, "score": [f"{h.name} {HALF[1 - k]} half" for h in hos],
+                      "params": {kk: v for kk, v in sk.effects[name].items() if not kk.startswith("_")},
+                      "masses": masses, "_state": sk, "_ranges": rg})
+    target = hos[int(np.argmax([rmse(e) for e in cur]))]
+    return {"errors": out, "folds": folds, "target": target}
+
+
+def saved_fit(st: FitState, name: str, rec: Record, train: Fitter, search_rate_hz: float,
+              trials: Trials) -> tuple[FitState, str]:
+    """The chain to keep: effect ``name`` fitted on the whole of ``rec``."""
+    eff, _ = fit_on(rec, st, name, train.u_range, search_rate_hz, trials)
+    return with_effect(train, st, eff)

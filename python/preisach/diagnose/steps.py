@@ -1,0 +1,614 @@
+"""The diagnosis in steps (``docs/method/diagnosis.md``).
+
+``prepare`` loads the records and fits the baseline and the fitters; ``reference`` the
+chain the search starts from and what a finer hysteresis alone achieves; ``where`` the
+floors and the residual's localization; ``search`` the stepwise rounds (``fit_round``
+fits every candidate, ``accept`` picks one, ``eliminate`` drops one it made redundant);
+``refine`` the chain found at the finer average and the discretization check; then the
+effects fitted on the holdouts (``holdout_effects``, :mod:`preisach.diagnose.crossfit`)
+and each holdout's ``initial_state``; :mod:`preisach.diagnose.reporting` writes the
+report. Each step reads the :class:`Run` and moves the :class:`Found` chain.
+"""
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Optional, Sequence, Union
+
+import numpy as np
+
+from preisach.chain import Chain, load
+from preisach.diagnose import crossfit as cf
+from preisach.diagnose.crossfit import consistent, holdout_delay
+from preisach.diagnose.effects import CANDIDATES, FitState, Record, rmse
+from preisach.diagnose.initial import concentrated, estimate, fitted_part, predict_from
+from preisach.diagnose.ranges import ends_at_bound
+from preisach.diagnose.records import RecordLike, check_distinct, holdout_list, load_record, reversals
+from preisach.diagnose.registry import OWN_STEPS, REGISTRY, SLOW_FIRST, Scale, trivial
+from preisach.diagnose.search import Effects, Fitter, Trials, calibrate_slow
+from preisach.diagnose.where import localize, noise_floor, repeatability_floor, signatures
+from preisach.model import PreisachModel, PreisachWarning
+
+Errors = list[np.ndarray]
+
+
+@dataclass
+class Baseline:
+    """The "before": the model fitted on the training record (or the one given), the
+    effects of a given chain that is refitted with them, and its errors."""
+
+    model: PreisachModel
+    effects: Effects
+    given: Optional[dict[str, Any]]
+    chain: Optional[Union[PreisachModel, Chain]]
+    residuals: dict[str, np.ndarray] = field(default_factory=dict)
+    rmse: dict[str, float] = field(default_factory=dict)
+    holdout_rmse: float = float("nan")
+
+    def predict(self, r: Record) -> np.ndarray:
+        if isinstance(self.chain, Chain):
+            return self.chain.predict(r.t, r.u)
+        return (self.chain or self.model).predict(r.u)
+
+
+@dataclass
+class Run:
+    """What every step reads: the records, the baseline, the fitters (candidates on the
+    coarser average, the chain found on the finer one) and the scoring on the holdouts."""
+
+    tr: Record
+    hos: list[Record]
+    n_h: int
+    candidates: Sequence[str]
+    min_shrink: float
+    trials: Trials
+    say: Callable[[str], None]
+    base: Baseline
+    fitter: Fitter
+    fine: Fitter
+    stride: int
+    sstride: int
+    search_rate_hz: float = 12.5e3
+
+    @property
+    def recs(self) -> list[Record]:
+        return [self.tr] + self.hos
+
+    @property
+    def halves(self) -> list[tuple[slice, slice]]:
+        return [(slice(0, h.y.size // 2), slice(h.y.size // 2, None)) for h in self.hos]
+
+    def holdout_errors(self, st: FitState) -> Errors:
+        """Errors on each holdout. A chain with drift or creep has them recalibrated
+        across records for each half of the holdouts, from the training record and the
+        other halves (cross-fitting; see ``calibrate_slow``)."""
+        if "drift" not in st.effects and "creep" not in st.effects:
+            return [st.predict(h) - h.y for h in self.hos]
+        errs = [np.empty(h.y.size) for h in self.hos]
+        outputs: dict[int, np.ndarray] = {}
+        halves = self.halves
+        for k in (0, 1):
+            cal = calibrate_slow(st, [(self.tr, slice(None))] + [(h, hv[1 - k]) for h, hv in zip(self.hos, halves)],
+                                 outputs)
+            for e, h, hv in zip(errs, self.hos, halves):
+                e[hv[k]] = (cal.predict(h) - h.y)[hv[k]]
+        return errs
+
+    def parts_of(self, es: Errors) -> tuple[float, np.ndarray]:
+        """RMSE overall and on each half of each holdout."""
+        parts = []
+        for e, hv in zip(es, self.halves):
+            parts += [rmse(e[hv[0]]), rmse(e[hv[1]])]
+        return rmse(np.concatenate(es)), np.array(parts)
+
+    def score_parts(self, st: FitState) -> tuple[float, np.ndarray]:
+        """Holdout RMSE overall and on each half of each holdout (the acceptance rule
+        asks an effect to help on every part, not just on average)."""
+        return self.parts_of(self.holdout_errors(st))
+
+    def score(self, st: FitState) -> float:
+        return self.score_parts(st)[0]
+
+
+@dataclass
+class Floors:
+    """The bar an effect must beat: the noise floor (on the records, and on the fit's
+    averaged training record), the repeatability floor, what a finer hysteresis alone
+    achieves (``hyst_alone``, at ``nh2``), and the interpolated reference's score."""
+
+    noise: float
+    noise_fit: float
+    repeatability: Optional[float]
+    ref_score: float
+    hyst_alone: float
+    nh2: int
+    scale: Scale
+
+    @property
+    def accept(self) -> float:
+        return max(self.noise, self.repeatability or 0.0)
+
+
+@dataclass
+class Found:
+    """The chain as the search moves it: its state, holdout score and parts, every
+    candidate tried (``tried``: name -> what the report needs) and the effects kept."""
+
+    cur: FitState
+    score: float
+    parts: np.ndarray
+    tried: dict[str, dict[str, Any]] = field(default_factory=dict)
+    accepted: list[str] = field(default_factory=list)
+    cross_fit: dict[str, Any] = field(default_factory=dict)
+
+    def move(self, st: FitState, score: float, parts: np.ndarray) -> None:
+        self.cur, self.score, self.parts = st, score, parts
+
+
+def gain(before: float, after: float) -> float:
+    """The fraction of ``before`` that ``after`` removes."""
+    return (before - after) / before if before > 0 else 0.0
+
+
+# -- prepare ---------------------------------------------------------------------------
+def _refittable(b: Union[PreisachModel, Chain]) -> Optional[tuple[PreisachModel, Effects]]:
+    """A baseline's model and effects when it is an identified model followed by effects
+    the search knows (else None: it can only be the "before")."""
+    if isinstance(b, PreisachModel):
+        return b, {}
+    model = b.model
+    if model is None or b.kinds()[0] != "hysteresis" or b.initial_input is not None:
+        return None
+    try:
+        effects = b.effects
+    except ValueError:
+        return None
+    if any(k not in CANDIDATES or "modes" in p for k, p in effects.items()):
+        return None
+    return model, {k: dict(v) for k, v in effects.items()}
+
+
+def load_inputs(train: RecordLike, holdouts: Sequence[RecordLike],
+                candidates: Sequence[str]) -> tuple[Record, list[Record]]:
+    """The records, checked: known candidates, distinct holdouts, a training input with
+    reversals."""
+    holdouts = holdout_list(holdouts)
+    unknown = [c for c in candidates if c not in CANDIDATES + OWN_STEPS]
+    if unknown:
+        raise ValueError(f"candidates: unknown effect(s) {', '.join(unknown)}")
+    tr = load_record(train, "train")
+    hos = [load_record(h, f"holdout {i + 1}") for i, h in enumerate(holdouts)]
+    check_distinct(tr, hos)
+    if reversals(tr.u) < 2:
+        raise ValueError(f"{tr.name}: the input has no reversals (a monotone input cannot identify hysteresis)")
+    return tr, hos
+
+
+def fit_baseline(tr: Record, hos: list[Record], n_h: int,
+                 baseline: Optional[Union[str, Path, Chain, PreisachModel]]) -> Baseline:
+    """The baseline, exactly as ``preisach identify`` makes it, or the given one: a
+    model, or a model followed by effects, is refitted with its effects; any other chain
+    (a simulated stage) is the "before" only, and the search starts from a fitted model."""
+    given: Optional[dict[str, Any]] = None
+    bch: Optional[Union[PreisachModel, Chain]] = None
+    refit = None
+    if baseline is not None:
+        bch = baseline if isinstance(baseline, (Chain, PreisachModel)) else load(baseline)
+        refit = _refittable(bch)
+        kinds = ["hysteresis"] if isinstance(bch, PreisachModel) else bch.kinds()
+        given = {"blocks": kinds, "refitted": refit is not None}
+    if refit is not None:
+        model, effects = refit
+    else:
+        effects = {}
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model = PreisachModel.fit(tr.u, tr.y, n_h)
+    b = Baseline(model, effects, given, bch)
+    for r in [tr] + hos:
+        b.residuals[r.name] = r.y - b.predict(r)
+        b.rmse[r.name] = rmse(b.residuals[r.name])
+    b.holdout_rmse = rmse(np.concatenate([b.residuals[h.name] for h in hos]))
+    return b
+
+
+def make_fitters(tr: Record, n_h: int, fit_rate_hz: float, search_rate_hz: float,
+                 trials: Trials) -> tuple[Fitter, Fitter, int, int]:
+    """The fitters of the candidate chains (windows averaged down to about
+    ``search_rate_hz``) and of the chain found (about ``fit_rate_hz``).
+
+    The average commutes with the dynamics and keeps the timing of input steps (point
+    decimation would bias every timing). The model range is a little wider than the
+    training input (5 % of its span each side): no sample saturates the model, which
+    otherwise biases the effect parameters (creep most) that compensate the flat output
+    beyond the range."""
+    u_lo, u_hi = float(np.min(tr.u)), float(np.max(tr.u))
+    pad = 0.05 * (u_hi - u_lo)
+    rng = (u_lo - pad, u_hi + pad)
+    stride = max(1, int(round(1.0 / (tr.dt * fit_rate_hz))))
+    sstride = max(stride, int(round(1.0 / (tr.dt * min(search_rate_hz, fit_rate_hz)))))
+    fitter = Fitter(tr, n_h, rng, sstride, trials=trials)
+    fine = Fitter(tr, n_h, rng, stride, trials=trials) if stride != sstride else fitter
+    if tr.u.size // (4 * sstride) >= 4000:
+        # The slow effects' own searches on windows 4x longer (about 3 kHz).
+        fitter.slow = Fitter(tr, n_h, rng, 4 * sstride, trials=trials)
+    return fitter, fine, stride, sstride
+
+
+# -- reference and where ---------------------------------------------------------------
+def reference(run: Run) -> tuple[Found, float, int]:
+    """The chain the search starts from (the interpolated model, with a given chain's
+    effects polished), its score, and what a finer hysteresis alone achieves (an effect
+    is detected only when its chain beats it as well as the interpolated one)."""
+    fitter = run.fitter
+    cur_eff: Effects = {k: dict(v) for k, v in run.base.effects.items()}
+    if cur_eff:
+        cur_eff, _ = fitter.polish(cur_eff, list(cur_eff), sweeps=2)
+        cur_eff = fitter.with_linear(cur_eff)
+    ref = fitter.state(cur_eff)
+    ref_score, ref_parts = run.score_parts(ref)
+    run.say(f"reference (interpolated) holdout RMSE {ref_score:.4g} (baseline {run.base.holdout_rmse:.4g})")
+    nh2 = min(2 * run.n_h, max(run.n_h, reversals(run.tr.u) // 2), 120)
+    hyst_alone = ref_score
+    if nh2 > run.n_h:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", PreisachWarning)
+            hyst_alone = min(ref_score, run.score(fitter.state(cur_eff, n_h=nh2)))
+        run.say(f"finer hysteresis alone (n_h={nh2}): holdout RMSE {hyst_alone:.4g}")
+    return Found(ref, ref_score, ref_parts), hyst_alone, nh2
+
+
+def where(run: Run, found: Found, hyst_alone: float,
+          nh2: int) -> tuple[Floors, list[dict[str, Any]], dict[str, Any]]:
+    """The floors, the residual's localization on every record and its signatures."""
+    ref, recs = found.cur, run.recs
+    floor = float(np.median([noise_floor(r.y - ref.predict(r)) for r in recs]))
+    floor_j = noise_floor(run.fitter.y - run.fitter.predict(ref)) ** 2
+    levels = np.linspace(*run.base.model.u_range, run.n_h + 1)
+    loc = [localize(r.name, r.t, r.u, run.base.residuals[r.name], r.dt, levels) for r in recs]
+    sig = {}
+    for r in recs:
+        h = ref.predict(r)
+        sig[r.name] = signatures(r.t, r.u, h, r.y - h, r.dt)
+    # The floor an effect must beat: the noise, or the difference between repeated records
+    # where there are any (what no chain fitted on one record can come below).
+    rep_floor = repeatability_floor([(r.u, r.y) for r in recs])
+    run.say(f"where: noise floor {floor:.3g}, repeatability floor "
+            f"{'(no repeated records)' if rep_floor is None else f'{rep_floor:.3g}'}, "
+            f"residual localized on {len(recs)} records")
+    t_all = np.concatenate([r.t for r in recs])
+    scale = Scale(2.0 * min(r.dt for r in recs), run.fitter.dt, run.tr, float(t_all.max() - t_all.min()), floor)
+    return Floors(floor, floor_j, rep_floor, found.score, hyst_alone, nh2, scale), loc, sig
+
+
+# -- search ----------------------------------------------------------------------------
+Result = tuple[FitState, float, np.ndarray, float]
+
+
+def fit_round(run: Run, found: Found, fl: Floors, todo: list[str], rnd: int) -> dict[str, Result]:
+    """Every candidate in ``todo`` added to the current chain and fitted on the training
+    record, two at a time (the core releases the GIL), the slow ones first; recorded in
+    ``found.tried``."""
+    fitter, trials = run.fitter, run.trials
+    j_cur = fitter.J(found.cur.effects)
+
+    def one(c: str, base: Effects = found.cur.effects) -> tuple[str, FitState, float, np.ndarray, float, float]:
+        t0 = time.perf_counter()
+        with trials.search():
+            eff = REGISTRY[c].fit(fitter, base)
+            st = fitter.state(eff)
+        sc, parts = run.score_parts(st)
+        return c, st, sc, parts, fitter.J(eff), time.perf_counter() - t0
+
+    todo = sorted(todo, key=lambda c: SLOW_FIRST.index(c) if c in SLOW_FIRST else len(SLOW_FIRST))
+    results: dict[str, Result] = {}
+    with warnings.catch_warnings(), ThreadPoolExecutor(max_workers=min(trials.workers, len(todo))) as ex:
+        warnings.simplefilter("ignore", PreisachWarning)
+        for c, st, sc, parts, jc, el in ex.map(one, todo):
+            results[c] = (st, sc, parts, jc)
+            tg = (j_cur - jc) / max(j_cur - fl.noise_fit, 1e-300)
+            run.say(f"round {rnd + 1}: + {c:10s} holdout RMSE {sc:.4g}, training {math.sqrt(jc):.4g} "
+                    f"({100 * tg:.0f} % of the excess) ({el:.1f} s)")
+    results = {c: results[c] for c in run.candidates if c in results}
+    for c, (st, sc, _, jc) in results.items():
+        found.tried[c] = {"state": st, "rmse_after": sc, "rmse_current": found.score,
+                          "score": gain(found.score, sc), "round": rnd + 1,
+                          "train_gain": (j_cur - jc) / max(j_cur - fl.noise_fit, 1e-300)}
+    return results
+
+
+def refusal(run: Run, found: Found, fl: Floors, c: str, res: Result, rnd: int) -> Optional[str]:
+    """Why candidate ``c`` (its chain fitted in round ``rnd``) is not accepted, or None."""
+    st, sc, parts, _ = res
+    g = gain(found.score, sc)
+    strong = found.tried[c]["train_gain"] >= 0.5
+    if found.score - sc < 0.5 * fl.accept:
+        return "improvement below half the noise (or repeatability) floor"
+    if sc >= fl.hyst_alone:
+        return "no better than a finer hysteresis alone"
+    if found.tried[c]["train_gain"] <= 0:
+        return "it does not fit the training record better"
+    if rnd > 0 and not strong and np.any(parts > found.parts * 1.05 + 1e-12) \
+            and not (REGISTRY[c].slow and g >= 2 * run.min_shrink):
+        # (A slow effect's parameters are calibrated on the holdouts' other halves,
+        # which moves error between the halves; a large gain counts for it.)
+        return "worsens part of a holdout"
+    if trivial(c, st.effects[c], fl.scale):
+        return "trivial parameters"
+    if ends_at_bound(c, st.effects[c], run.fitter.ranges):
+        return "at its search bound: " + "; ".join(ends_at_bound(c, st.effects[c], run.fitter.ranges))
+    return None
+
+
+def accept(run: Run, found: Found, fl: Floors, results: dict[str, Result], rnd: int) -> Optional[str]:
+    """The candidate accepted in round ``rnd``, or None; moves the chain to it.
+
+    The best candidate that shrinks the holdout RMSE by ``min_shrink`` and by more than
+    half the floor, fits the training record better (a chain that fits it worse only
+    trades errors between records), after the first round worsens no half of a holdout
+    by more than 5 %, and has non-trivial parameters. A candidate that explains most of
+    the training error above the noise (``strong``) also counts with a smaller holdout
+    gain, and goes first: the training record is where parameters are identified, and a
+    slow effect (drift, creep) is identified better once the fast ones are in the chain."""
+    passing = []
+    for c in sorted(results, key=lambda c: results[c][1]):
+        sc = results[c][1]
+        g = gain(found.score, sc)
+        strong = found.tried[c]["train_gain"] >= 0.5
+        if g < run.min_shrink and not (strong and g >= 0.25 * run.min_shrink):
+            continue
+        why = refusal(run, found, fl, c, results[c], rnd)
+        if why is None:
+            passing.append((not strong, sc, c))
+        else:
+            found.tried[c]["refused"] = why
+            run.say(f"round {rnd + 1}: {c} refused ({why})")
+    if not passing:
+        return None
+    best = min(passing)[2]
+    found.accepted.append(best)
+    found.move(*results[best][:3])
+    for x in found.cur.effects:
+        if x not in found.accepted and x not in run.base.effects and not trivial(x, found.cur.effects[x], fl.scale) \
+                and not ends_at_bound(x, found.cur.effects[x], run.fitter.ranges):
+            # Fitted with it as a pair (a mode whose ringing needed a delay).
+            found.accepted.append(x)
+            found.tried[x] = dict(found.tried[best],
+                                  score=found.tried.get(x, {}).get("score", found.tried[best]["score"]))
+    run.say(f"round {rnd + 1}: accepted {best}: holdout RMSE {found.score:.4g}")
+    return best
+
+
+def eliminate(run: Run, found: Found, best: str, rnd: int) -> None:
+    """Backward elimination: an effect accepted earlier that ``best`` makes redundant (a
+    delay that stood in for a low-pass's lag) is dropped when the chain without it,
+    re-polished, scores as well."""
+    for x in [k for k in found.accepted if k != best]:
+        if len(found.accepted) < 2 or x not in found.cur.effects:
+            continue
+        st2 = run.fitter.state(run.fitter.without(found.cur.effects, x))
+        sc2, parts2 = run.score_parts(st2)
+        run.say(f"round {rnd + 1}: without {x}: holdout RMSE {sc2:.4g}")
+        if sc2 <= found.score * 1.02:
+            found.accepted.remove(x)
+            found.tried[x]["refused"] = f"made redundant by {best}"
+            found.move(st2, sc2, parts2)
+
+
+def search(run: Run, found: Found, fl: Floors) -> None:
+    """Stepwise selection scored on the holdouts: up to three rounds of fit, accept,
+    eliminate."""
+    dyn = [c for c in run.candidates if c in CANDIDATES and c not in run.base.effects]
+    for rnd in range(3):
+        if found.score <= 1.2 * fl.accept:
+            run.say("residual at the noise (or repeatability) floor; stopping")
+            return
+        todo = [c for c in dyn if c not in found.accepted]
+        if rnd >= 2:
+            # A candidate that made the chain worse in the round before is not refitted:
+            # one more accepted effect does not unmask it.
+            skip = [c for c in todo if c in found.tried and found.tried[c]["round"] == rnd
+                    and found.tried[c]["score"] <= 0]
+            for c in skip:
+                run.say(f"round {rnd + 1}: {c} skipped (it worsened the chain in round {rnd})")
+            todo = [c for c in todo if c not in skip]
+        if not todo:
+            return
+        best = accept(run, found, fl, fit_round(run, found, fl, todo, rnd), rnd)
+        if best is None:
+            return
+        eliminate(run, found, best, rnd)
+
+
+# -- refine ----------------------------------------------------------------------------
+def _finer(run: Run, fl: Floors, st0: FitState) -> tuple[FitState, float, np.ndarray, float]:
+    """The chain ``st0`` on the finer grid, fitted at the finer average, and its score."""
+    t0 = time.perf_counter()
+    with warnings.catch_warnings(), run.trials.search():
+        warnings.simplefilter("ignore", PreisachWarning)
+        st = run.fine.state(st0.effects, n_h=fl.nh2)
+    sc, parts = run.score_parts(st)
+    return st, sc, parts, time.perf_counter() - t0
+
+
+def _polish_fine(run: Run, found: Found) -> None:
+    """The chain found, polished and refitted on the finer average (local steps only: the
+    valley between a delay and a low-pass was searched on the coarser average). Creep is
+    left as searched when the chain has a mode: each trial of it is a solve behind the
+    resonance at the finer average, and the mode's timing is what this refit is for; the
+    slow effects are recalibrated across the records later."""
+    if run.fine is run.fitter or not (found.accepted or run.base.effects):
+        return
+    names = [k for k in found.cur.effects if not (k == "creep" and "vibration" in found.cur.effects)]
+    with run.trials.search():
+        eff, _ = run.fine.polish(dict(found.cur.effects), names, sweeps=1, scale=0.5, refine=1, valley=False)
+    pol = run.fine.state(eff)
+    ps, pparts = run.score_parts(pol)
+    run.say(f"refit at {1 / run.fine.dt:.0f} Hz: holdout RMSE {ps:.4g} (was {found.score:.4g})")
+    if ps < found.score:
+        found.move(pol, ps, pparts)
+
+
+def refine(run: Run, found: Found, fl: Floors) -> None:
+    """The chain found, refitted on the finer average; the discretization check (a finer
+    grid with the effects found) runs beside it on the chain before the refit, and is
+    redone on the refitted chain only when it passes."""
+    disc = "discretization" in run.candidates and fl.nh2 > run.n_h
+    with ThreadPoolExecutor(max_workers=1) as ex:
+        fut = ex.submit(_finer, run, fl, found.cur) if disc else None
+        pre_score, pre_parts = found.score, found.parts
+        _polish_fine(run, found)
+        if fut is None:
+            return
+        st, sc, parts, el = fut.result()
+    run.say(f"+ discretization (n_h={fl.nh2}) holdout RMSE {sc:.4g} (without: {pre_score:.4g}) ({el:.1f} s)")
+    g = gain(pre_score, sc)
+    why = None
+    if g >= run.min_shrink and pre_score - sc < 0.5 * fl.accept:
+        why = "improvement below half the noise (or repeatability) floor"
+    elif g >= run.min_shrink and np.any(parts > pre_parts * 1.05 + 1e-12):
+        why = "worsens part of a holdout"
+    elif g >= run.min_shrink and pre_score > 1.2 * fl.accept and found.score < pre_score:
+        # It passed on the chain before the refit: the same on the refitted chain.
+        st, sc, parts, _ = _finer(run, fl, found.cur)
+        g = gain(found.score, sc)
+        if g < run.min_shrink:
+            why = "no gain on the refitted chain"
+    found.tried["discretization"] = {"state": st, "rmse_after": sc, "rmse_current": found.score, "score": g,
+                                     "round": len(found.accepted) + 1, "n_h": fl.nh2}
+    if why is not None:
+        found.tried["discretization"]["refused"] = why
+    elif g >= run.min_shrink and found.score > 1.2 * fl.accept:
+        found.accepted.append("discretization")
+        found.cur, found.score = st, sc
+
+
+# -- the holdouts ----------------------------------------------------------------------
+def _halves_refusal(run: Run, found: Found, fl: Floors, c: str, xf: dict[str, Any], sc: float,
+                    parts: np.ndarray) -> Optional[str]:
+    """Why effect ``c`` cross-fitted on the holdouts' halves is not accepted, or None."""
+    if gain(found.score, sc) < run.min_shrink or found.score - sc < 0.5 * fl.accept or sc >= fl.hyst_alone:
+        return "no gain on the holdouts cross-fitted"
+    if np.any(parts > found.parts * 1.05 + 1e-12):
+        return "worsens part of a holdout"
+    ps = [f["params"] for f in xf["folds"]]
+    if any(trivial(c, f["_state"].effects[c], fl.scale) for f in xf["folds"]):
+        return "trivial parameters"
+    if not cf.agree(c, ps):
+        return f"the folds disagree on {REGISTRY[c].agree[0]}"
+    bounds = [b for f in xf["folds"] for b in ends_at_bound(c, f["_state"].effects[c], f["_ranges"])]
+    if bounds:
+        return "at its search bound: " + "; ".join(bounds)
+    return None
+
+
+def holdout_halves(run: Run, found: Found, fl: Floors) -> None:
+    """The fast effects the training record does not show (a mode the slow
+    identification sine does not excite), each fitted on half of a holdout and scored on
+    the other halves (``crossfit.holdout_halves``); the best that passes is kept, fitted
+    once more on the whole holdout it shows most on."""
+    names = [c for c in run.candidates if c in REGISTRY and REGISTRY[c].cross_fit == "halves"
+             and c not in found.accepted]
+    if not names or found.score <= 1.2 * fl.accept:
+        return
+
+    def one(c: str) -> tuple[str, dict[str, Any]]:
+        return c, cf.holdout_halves(found.cur, c, run.hos, run.holdout_errors, run.fitter, run.search_rate_hz,
+                                    run.trials)
+
+    passing = []
+    with warnings.catch_warnings(), ThreadPoolExecutor(max_workers=min(run.trials.workers, len(names))) as ex:
+        warnings.simplefilter("ignore", PreisachWarning)
+        for c, xf in ex.map(one, names):
+            sc, parts = run.parts_of(xf["errors"])
+            why = _halves_refusal(run, found, fl, c, xf, sc, parts)
+            run.say(f"{c} fitted on the holdouts' halves (cross-fitted): holdout RMSE {sc:.4g} "
+                    f"(without: {found.score:.4g}){'' if why is None else f'; refused ({why})'}")
+            found.cross_fit[c] = {"folds": [{k: v for k, v in f.items() if not k.startswith("_")}
+                                            for f in xf["folds"]], "rmse_after": sc}
+            if why is None:
+                passing.append((sc, c, parts, xf))
+            else:
+                found.cross_fit[c]["refused"] = why
+                if c not in found.tried:
+                    st = xf["folds"][0]["_state"]
+                    found.tried[c] = {"state": st, "rmse_after": sc, "rmse_current": found.score,
+                                      "score": gain(found.score, sc), "round": len(found.accepted) + 1,
+                                      "fitted_on": "holdouts' halves (see split.cross_fit)", "refused": why}
+    if not passing:
+        return
+    sc, c, parts, xf = min(passing, key=lambda p: p[0])
+    st, masses = cf.saved_fit(found.cur, c, xf["target"], run.fitter, run.search_rate_hz, run.trials)
+    found.cross_fit[c]["saved"] = {"fit": xf["target"].name, "masses": masses}
+    found.tried[c] = {"state": st, "rmse_after": sc, "rmse_current": found.score, "score": gain(found.score, sc),
+                      "round": len(found.accepted) + 1, "fitted_on": "holdouts' halves (see split.cross_fit)"}
+    found.accepted.append(c)
+    found.move(st, sc, parts)
+    run.say(f"accepted {c} (cross-fitted on the holdouts): holdout RMSE {sc:.4g}")
+
+
+def holdout_effects(run: Run, found: Found, fl: Floors) -> None:
+    """Effects only the holdouts carry: the fast ones on the holdouts' halves, then a
+    delay added to the chain found."""
+    holdout_delay_step(run, found, fl)
+
+
+def holdout_delay_step(run: Run, found: Found, fl: Floors) -> None:
+    """A delay only the holdouts carry (the loop reads another channel than the one the
+    model was identified on): fitted on some holdouts, scored on the others."""
+    if "delay" not in run.candidates or "delay" in found.accepted or found.score <= 1.2 * fl.accept:
+        return
+    xf = holdout_delay(found.cur, run.hos, run.holdout_errors, run.fitter.ranges["delay"]["delay_s"])
+    sc, parts_x = run.parts_of(xf["errors"])
+    g = gain(found.score, sc)
+    run.say(f"delay fitted on the holdouts (cross-fitted): holdout RMSE {sc:.4g} (without: {found.score:.4g}); "
+            + ", ".join(f"{1e3 * f['added_s']:.3g} ms on {'+'.join(f['fit'])}" for f in xf["folds"]))
+    why = None
+    if g < run.min_shrink or found.score - sc < 0.5 * fl.accept or sc >= fl.hyst_alone:
+        why = "no gain on the holdouts cross-fitted"
+    elif not consistent(xf["folds"], fl.scale.min_delay):
+        why = "the holdouts disagree on the delay"
+    elif ends_at_bound("delay", xf["state"].effects["delay"], run.fitter.ranges):
+        why = "at its search bound: " + "; ".join(ends_at_bound("delay", xf["state"].effects["delay"],
+                                                                 run.fitter.ranges))
+    found.cross_fit["delay"] = {"folds": xf["folds"], "added_s": xf["added_s"],
+                                "base_delay_s": float(found.cur.effects.get("delay", {}).get("delay_s", 0.0))}
+    if why is None:
+        found.tried["delay"] = {"state": xf["state"], "rmse_after": sc, "rmse_current": found.score, "score": g,
+                                "round": len(found.accepted) + 1, "fitted_on": "holdouts"}
+        found.accepted.append("delay")
+        found.move(xf["state"], sc, parts_x)
+    else:
+        found.cross_fit["delay"]["refused"] = why
+
+
+def initial_state(run: Run, found: Found, fl: Floors) -> None:
+    """The hysteresis memory at each holdout's start (history nobody recorded), estimated
+    on the part before its input swept the range, the chain fixed."""
+    if "initial_state" not in run.candidates or found.score <= 1.2 * fl.accept:
+        return
+    cur, hos = found.cur, run.hos
+    est = {h.name: estimate(cur, h) for h in hos}
+    errs = []
+    for e, ho in zip(run.holdout_errors(cur), hos):
+        k = fitted_part(ho)
+        own = concentrated(est[ho.name][1], est[ho.name][2], rmse(e[k:]) if k < e.size else 0.0)
+        # Only a staircase whose part's error is its own is kept.
+        errs.append(e + predict_from(cur, ho, est[ho.name][0]) - cur.predict(ho) if own else e)
+    sc = rmse(np.concatenate(errs))
+    g = gain(found.score, sc)
+    run.say(f"initial state of each holdout: holdout RMSE {sc:.4g} (without: {found.score:.4g})")
+    first = max(hos, key=lambda h: est[h.name][1] - est[h.name][2])
+    found.tried["initial_state"] = {
+        "state": cur, "rmse_after": sc, "rmse_current": found.score, "score": g, "round": len(found.accepted) + 1,
+        "fitted_on": "each holdout's start, before its input swept the range",
+        "params": {"extrema": est[first.name][0], "record_extrema": {h.name: est[h.name][0] for h in hos}}}
+    if g < run.min_shrink or found.score - sc < 0.5 * fl.accept or sc >= fl.hyst_alone:
+        found.tried["initial_state"]["refused"] = "no gain on the holdouts"
+    else:
+        found.accepted.append("initial_state")
+        found.score = sc
