@@ -61,3 +61,81 @@ def test_every_step_fits_on_a_screen():
         for name, fn in inspect.getmembers(mod, inspect.isfunction):
             if fn.__module__ == mod.__name__:
                 assert len(inspect.getsource(fn).splitlines()) <= 70, (mod.__name__, name)
+
+
+# ----------------------------------------------------------------- cross-fitting
+def _mode_found_cross_fitted(rep, f_true):
+    found = [(e["name"], e["detected"], e["refused"]) for e in rep.effects]
+    v = next(e for e in rep.effects if e["name"] == "vibration")
+    assert v["detected"] and v["fitted_on"].startswith("holdouts"), found
+    assert abs(v["params"]["frequency_hz"] / f_true - 1) < 0.03
+    xf = rep.split["cross_fit"]["vibration"]
+    # Each half scored with the mode fitted on a half of the other kind, never on itself.
+    for f, k, other in zip(xf["folds"], ("first", "second"), ("second", "first")):
+        assert f["fit"].endswith(f"{k} half") and all(s.endswith(f"{other} half") for s in f["score"])
+        assert abs(f["params"]["frequency_hz"] / f_true - 1) < 0.03
+    assert "saved" in xf and v["shrink_vs_current"] > 0.2
+    return v
+
+
+def test_a_mode_only_the_holdouts_show_is_found_cross_fitted_on_the_rig():
+    """The paper's protocol on the independent rig: identified on a slow sine of
+    increasing amplitude that does not excite the mode, held out on steps (which ring)
+    and a 50 Hz sine."""
+    import rig
+
+    from preisach.diagnose import diagnose
+
+    case = rig.make_case("paper_mode", 1)
+    tr, hos = rig.records(case)
+    rep = diagnose(tr, hos, progress=False)
+    _mode_found_cross_fitted(rep, case["truth"]["modes"][0][0])
+    # (Not always dominant here: an initial_state is found on the holdouts' starts as
+    # well, and may shrink its chain more; these records start at rest.)
+    assert rep.dominant_effect in ("vibration", "initial_state")
+
+
+def _paper_stage_records(stage, fs, rng):
+    """The paper's protocol on a simulated stage: a slow sine of increasing amplitude,
+    then steps and a 50 Hz sine (t, u, y dicts, a few seconds apart)."""
+    n = int(2.0 * fs)
+    t = np.arange(n) / fs
+    ident = 3.75 - 3.6 * np.linspace(0.05, 1, n) * np.cos(2 * np.pi * rng.uniform(3, 6) * t)
+    steps = np.repeat(rng.uniform(0.5, 7.0, 10), int(0.06 * fs))
+    sine = 3.75 - 3.0 * np.cos(2 * np.pi * 50 * np.arange(int(0.6 * fs)) / fs)
+    out = []
+    for u, t0 in ((ident, 0.0), (steps, 3.0), (sine, 5.0)):
+        tt = t0 + np.arange(u.size) / fs
+        out.append({"t": tt, "u": u, "y": stage.simulate(tt, u)})
+    return out
+
+
+def test_a_mode_only_the_holdouts_show_is_found_cross_fitted_on_the_simulated_stage():
+    from preisach.diagnose import diagnose
+    from preisach.sim import Stage
+
+    rng = np.random.default_rng(1)
+    f0, z = float(rng.uniform(600, 1400)), float(math.exp(rng.uniform(math.log(0.01), math.log(0.04))))
+    stage = Stage.preset("paper", creep=False, resonance_hz=f0, damping=z, seed=1)
+    tr, h1, h2 = _paper_stage_records(stage, 50e3, rng)
+    rep = diagnose(tr, [h1, h2], progress=False)
+    _mode_found_cross_fitted(rep, f0)
+    assert rep.dominant_effect == "vibration"
+
+
+def test_repeats_of_the_identification_run_on_the_simulated_stage_give_none():
+    """The same slow sine three times (the noise differs): the mode it does not excite
+    is no false alarm, cross-fitted or not."""
+    from preisach.diagnose import diagnose
+    from preisach.sim import Stage
+
+    fs, rng = 50e3, np.random.default_rng(2)
+    n = int(1.0 * fs)
+    u = 3.75 - 3.6 * np.linspace(0.05, 1, n) * np.cos(2 * np.pi * 4.0 * np.arange(n) / fs)
+    recs = []
+    for k in range(3):
+        t = 2.0 * k + np.arange(n) / fs
+        recs.append({"t": t, "u": u, "y": Stage.preset("paper", creep=False, seed=10 + k).simulate(t, u)})
+    rep = diagnose(recs[0], recs[1:], progress=False)
+    assert rep.dominant_effect == "none", [(e["name"], e["refused"]) for e in rep.effects]
+    assert not any(e["detected"] for e in rep.effects)

@@ -20,7 +20,7 @@ from typing import Any, Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from preisach.diagnose.effects import FitState, Record, _grid_then_parabola, rmse
+from preisach.diagnose.effects import FitState, Record, _grid_then_parabola
 from preisach.diagnose.ranges import Bound, Ranges, delay_grid
 from preisach.diagnose.registry import REGISTRY
 from preisach.diagnose.search import Effects, Fitter, Trials
@@ -102,15 +102,17 @@ HALF = ("first", "second")
 
 
 def fit_on(rec: Record, st: FitState, name: str, u_range: tuple[float, float], search_rate_hz: float,
-           trials: Trials) -> tuple[Effects, Ranges]:
+           trials: Trials) -> tuple[Effects, Ranges, float]:
     """The chain ``st`` plus effect ``name``, searched on ``rec`` (window averages down to
     about ``search_rate_hz``; the masses profiled on it, a mode's band fit behind the
-    chain's own masses), and the ranges searched (from ``rec``)."""
+    chain's own masses), the ranges searched (from ``rec``) and the share of the profiled
+    error on ``rec`` the effect removes there (how clearly ``rec`` shows it)."""
     stride = max(1, int(round(1.0 / (rec.dt * search_rate_hz))))
     f = Fitter(rec, st.model.n_h, u_range, stride, trials=trials)
     with trials.search():
         eff = REGISTRY[name].fit(f, st.effects, f.hysteresis(st.model, {}))
-    return eff, f.ranges
+        j0 = f.J(st.effects)
+    return eff, f.ranges, (j0 - f.J(eff)) / j0 if j0 > 0 else 0.0
 
 
 def with_effect(train: Fitter, st: FitState, eff: Effects) -> tuple[FitState, str]:
@@ -136,21 +138,21 @@ def agree(name: str, params: list[dict[str, Any]]) -> bool:
 def holdout_halves(st: FitState, name: str, hos: list[Record], errors: Errors, train: Fitter,
                    search_rate_hz: float, trials: Trials) -> dict[str, Any]:
     """Effect ``name`` cross-fitted on the holdouts' halves: for each half (first,
-    second), fitted on that half of the holdout whose current error there is largest
-    (where the effect shows), and every holdout's other half scored with it.
+    second), fitted on that half of every holdout, the fit kept from the one it explains
+    most of (where the effect shows), and every holdout's other half scored with it.
 
     Returns ``errors`` (per holdout, each half scored with the effect fitted on a first
     or second half: never on itself), ``folds`` (what was fitted on what, the parameters
-    found and the masses used; ``_state``, ``_ranges`` internal) and ``target`` (the
-    holdout the effect shows most on)."""
-    cur = errors(st)
+    found and the masses used; ``_state``, ``_ranges``, ``_gain``, ``_record`` internal)
+    and ``target`` (the holdout the effect shows most on)."""
     out = [np.empty(h.y.size) for h in hos]
     folds = []
     for k in (0, 1):
         sl = [slice(0, h.y.size // 2) if k == 0 else slice(h.y.size // 2, None) for h in hos]
-        i = int(np.argmax([rmse(e[s]) for e, s in zip(cur, sl)]))
-        part = half(hos[i], k)
-        eff, rg = fit_on(part, st, name, train.u_range, search_rate_hz, trials)
+        parts = [half(h, k) for h in hos]
+        fits = [fit_on(p, st, name, train.u_range, search_rate_hz, trials) for p in parts]
+        i = int(np.argmax([g for _, _, g in fits]))
+        part, (eff, rg, g) = parts[i], fits[i]
         sk, masses = with_effect(train, st, eff)
         for o, e, s in zip(out, errors(sk), sl):
             other = np.ones(e.size, dtype=bool)
@@ -158,13 +160,14 @@ def holdout_halves(st: FitState, name: str, hos: list[Record], errors: Errors, t
             o[other] = e[other]
         folds.append({"fit": part.name, "score": [f"{h.name} {HALF[1 - k]} half" for h in hos],
                       "params": {kk: v for kk, v in sk.effects[name].items() if not kk.startswith("_")},
-                      "masses": masses, "_state": sk, "_ranges": rg})
-    target = hos[int(np.argmax([rmse(e) for e in cur]))]
+                      "masses": masses, "explained_on_fit": g, "_state": sk, "_ranges": rg, "_gain": g,
+                      "_record": hos[i]})
+    target = max(folds, key=lambda f: f["_gain"])["_record"]
     return {"errors": out, "folds": folds, "target": target}
 
 
 def saved_fit(st: FitState, name: str, rec: Record, train: Fitter, search_rate_hz: float,
               trials: Trials) -> tuple[FitState, str]:
     """The chain to keep: effect ``name`` fitted on the whole of ``rec``."""
-    eff, _ = fit_on(rec, st, name, train.u_range, search_rate_hz, trials)
+    eff, _, _ = fit_on(rec, st, name, train.u_range, search_rate_hz, trials)
     return with_effect(train, st, eff)

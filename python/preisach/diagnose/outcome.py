@@ -15,8 +15,9 @@ from preisach.diagnose.steps import Floors, Found, Run
 #: How the holdouts score the chains (the ``split`` report's ``note``).
 SPLIT_NOTE = (
     "masses and effect parameters are fitted on the training record (the slow effects' calibration across "
-    "records, a delay only the holdouts carry (see cross_fit: fitted on some holdouts, scored on the others) "
-    "and each holdout's initial_state (fitted on the part of it before its input swept the range, the one "
+    "records, the fast effects only the holdouts carry (see cross_fit: a mode, a low-pass or a rate effect "
+    "fitted on half of a holdout and scored on the other halves of every holdout, the masses the training "
+    "record's; a delay fitted on some holdouts and scored on the others) and each holdout's initial_state (fitted on the part of it before its input swept the range, the one "
     "exception to the next rule) excepted); every chain is scored on the holdouts, no sample with parameters "
     "fitted on it. An effect is kept (stepwise) when it shrinks the holdout RMSE by min_shrink and by more "
     "than half the noise floor, fits the training record better, after the first effect worsens none of the "

@@ -493,7 +493,10 @@ def _halves_refusal(run: Run, found: Found, fl: Floors, c: str, xf: dict[str, An
     """Why effect ``c`` cross-fitted on the holdouts' halves is not accepted, or None."""
     if gain(found.score, sc) < run.min_shrink or found.score - sc < 0.5 * fl.accept or sc >= fl.hyst_alone:
         return "no gain on the holdouts cross-fitted"
-    if np.any(parts > found.parts * 1.05 + 1e-12):
+    # (As in the search: an effect that explains most of the error on the parts it was
+    # fitted on may leave part of a holdout worse; another effect may dominate there.)
+    strong = min(f["_gain"] for f in xf["folds"]) >= 0.5
+    if not strong and np.any(parts > found.parts * 1.05 + 1e-12):
         return "worsens part of a holdout"
     ps = [f["params"] for f in xf["folds"]]
     if any(trivial(c, f["_state"].effects[c], fl.scale) for f in xf["folds"]):
@@ -549,11 +552,31 @@ def holdout_halves(run: Run, found: Found, fl: Floors) -> None:
     found.accepted.append(c)
     found.move(st, sc, parts)
     run.say(f"accepted {c} (cross-fitted on the holdouts): holdout RMSE {sc:.4g}")
+    drop_redundant(run, found, c)
+
+
+def drop_redundant(run: Run, found: Found, best: str) -> None:
+    """Backward elimination without a refit (the chain's effects were fitted on the
+    holdouts): an effect accepted earlier that the chain without scores as well on is
+    dropped (a low-pass that stood in for a mode's lag)."""
+    for x in [k for k in found.accepted if k != best and k in REGISTRY and not REGISTRY[k].slow]:
+        if x not in found.cur.effects or (x == "delay" and any(k in found.cur.effects for k in ("vibration",
+                                                                                              "lowpass"))):
+            continue
+        st2 = FitState(found.cur.model, {k: v for k, v in found.cur.effects.items() if k != x},
+                       found.cur.train_rmse)
+        sc2, parts2 = run.score_parts(st2)
+        run.say(f"without {x}: holdout RMSE {sc2:.4g}")
+        if sc2 <= found.score * 1.02:
+            found.accepted.remove(x)
+            found.tried[x]["refused"] = f"made redundant by {best}"
+            found.move(st2, sc2, parts2)
 
 
 def holdout_effects(run: Run, found: Found, fl: Floors) -> None:
     """Effects only the holdouts carry: the fast ones on the holdouts' halves, then a
     delay added to the chain found."""
+    holdout_halves(run, found, fl)
     holdout_delay_step(run, found, fl)
 
 
