@@ -139,3 +139,98 @@ def test_repeats_of_the_identification_run_on_the_simulated_stage_give_none():
     rep = diagnose(recs[0], recs[1:], progress=False)
     assert rep.dominant_effect == "none", [(e["name"], e["refused"]) for e in rep.effects]
     assert not any(e["detected"] for e in rep.effects)
+
+
+# ----------------------------------------------------------------- a simulator kept as the baseline
+def _paper_stage_pair(fs, rng, real):
+    """Records of ``real`` on the paper's protocol (shorter): a slow growing sine, steps,
+    a triangle."""
+    n = int(1.0 * fs)
+    ident = 3.75 - 3.6 * np.linspace(0.05, 1, n) * np.cos(2 * np.pi * 5.0 * np.arange(n) / fs)
+    steps = np.repeat(rng.uniform(0.5, 7.0, 10), int(0.05 * fs))
+    tri = 3.75 + 3.5 * (2 * np.abs(2 * ((np.arange(int(0.5 * fs)) / fs * 8) % 1) - 1) - 1)
+    out = []
+    for u, t0 in ((ident, 0.0), (steps, 2.0), (tri, 4.0)):
+        t = t0 + np.arange(u.size) / fs
+        out.append({"t": t, "u": u, "y": real(t, u)})
+    return out
+
+
+def test_a_kept_simulator_gives_the_gap_to_the_stage_on_the_simulated_stage():
+    """My simulator is the stage less a sensor delay of 0.6 ms: kept as it is, the gap
+    found is that delay, and the saved chain is the simulator followed by it."""
+    from preisach.diagnose import diagnose
+    from preisach.sim import Stage
+
+    sim = Stage.preset("paper", creep=False, seed=3)
+    real = Stage.preset("paper", creep=False, seed=3, delay=6e-4)
+    tr, h1, h2 = _paper_stage_pair(50e3, np.random.default_rng(3), real.simulate)
+    rep = diagnose(tr, [h1, h2], baseline=sim, progress=False)
+    assert rep.baseline["kept"] == {"blocks": sim.kinds(), "masses": "as given"}
+    assert rep.dominant_effect == "delay", [(e["name"], e["refused"]) for e in rep.effects]
+    d = next(e for e in rep.effects if e["name"] == "delay")
+    assert abs(d["params"]["delay_s"] / 6e-4 - 1) < 0.10
+    assert rep.chain.kinds() == sim.kinds() + ["delay"]
+    # The saved chain runs: on a holdout it is close where the simulator is not.
+    e_aug = np.sqrt(np.mean((rep.chain.simulate(h1["t"], h1["u"]) - h1["y"]) ** 2))
+    e_sim = np.sqrt(np.mean((sim.simulate(h1["t"], h1["u"]) - h1["y"]) ** 2))
+    assert e_aug < 0.1 * e_sim
+
+
+def test_a_kept_simulator_on_the_independent_stage():
+    """The independent stage (SciPy filters) with a lightly damped mode; my simulator is
+    its hysteresis alone (a chain of one block, kept as it is, not refitted)."""
+    import independent_stage as bv
+
+    from preisach import Chain
+    from preisach.diagnose import diagnose
+
+    fs, rng = 20e3, np.random.default_rng(7)
+    hm = bv.true_hysteresis(np.random.default_rng(70))
+    # (A noise block: no effect the search knows, so the chain is a simulator, kept.)
+    sim = Chain.from_blocks(Chain(hm).blocks + [{"type": "noise", "std": 1e-9, "seed": 1}])
+    eff = {"vibration": {"frequency_hz": 900.0, "damping": 0.03}}
+    recs, t0 = [], 0.0
+    for kind in ("train", "steps", "triangle"):
+        u = bv.waveform(kind, fs, 1.0, rng)
+        t = t0 + np.arange(u.size) / fs
+        recs.append({"t": t, "u": u, "y": bv.simulate(hm, eff, t, u, 0.003, rng)})
+        t0 = t[-1] + 1.0
+    rep = diagnose(recs[0], recs[1:], baseline=sim, progress=False)
+    assert rep.baseline["kept"]["masses"] == "as given"
+    v = next(e for e in rep.effects if e["name"] == "vibration")
+    assert v["detected"] and abs(v["params"]["frequency_hz"] / 900.0 - 1) < 0.03
+    assert rep.chain.kinds()[:2] == ["hysteresis", "noise"] and "vibration" in rep.chain.kinds()
+
+
+def test_refit_masses_refits_the_simulators_hysteresis_on_the_training_record():
+    """My stage strokes 15 % more than my simulator: refitting the simulator's masses on
+    the training record, every other block kept, closes most of the gap."""
+    from preisach import Chain
+    from preisach.diagnose import diagnose
+    from preisach.sim import Stage
+
+    sim = Stage.preset("paper", creep=False, seed=3)
+    blocks = sim.blocks
+    for b in blocks:
+        if b["type"] == "sensor":
+            b["gain"] *= 1.15
+    real = Chain.from_blocks(blocks, sim.sample_rate_hz)
+    tr, h1, h2 = _paper_stage_pair(50e3, np.random.default_rng(4), real.simulate)
+    rep = diagnose(tr, [h1, h2], baseline=sim, refit_masses=True, progress=False)
+    assert rep.baseline["kept"]["masses"].startswith("refitted on the training record")
+    assert rep.chain.kinds()[:len(sim.kinds())] == sim.kinds()
+    assert rep.augmented["holdout_rmse"] < 0.5 * rep.baseline["holdout_rmse"]
+
+
+def test_refit_masses_without_a_baseline_is_a_one_line_error(tmp_path, capsys):
+    from preisach.cli import main
+
+    t = np.arange(400) / 1e4
+    u = 5 + 4 * np.sin(2 * np.pi * 20 * t)
+    for name in ("tr.csv", "h.csv"):
+        np.savetxt(tmp_path / name, np.c_[t, u, 0.2 * u], delimiter=",", header="t,u,y", comments="")
+    code = main(["diagnose", str(tmp_path / "tr.csv"), "--holdout", str(tmp_path / "h.csv"), "--json",
+                 str(tmp_path / "r.json"), "--refit-masses"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and "--refit-masses" in err[0] and "--baseline" in err[0]

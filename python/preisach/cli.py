@@ -377,7 +377,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="holdout record t,u,y (repeat for several); never used to fit anything")
     s.add_argument("--n-h", type=_positive_int, default=40, dest="n_h", metavar="N", help="baseline n_h")
     s.add_argument("--baseline", default=None, metavar="CHAIN.json",
-                   help="a chain that already models some effects")
+                   help="a model (refitted with its effects), or a simulator kept as it is: the gap between it "
+                        "and the records")
+    s.add_argument("--refit-masses", dest="refit_masses", action="store_true",
+                   help="with a simulator as --baseline: refit its hysteresis masses on TRAIN first")
     s.add_argument("--json", required=True, metavar="REPORT.json", help="write the full report here")
     s.add_argument("--save-model", dest="save_model", default=None, metavar="AUG.json",
                    help="write the augmented chain (runs with `preisach predict`)")

@@ -47,7 +47,7 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
              baseline: Optional[Union[str, Path, Chain, PreisachModel]] = None,
              candidates: Sequence[str] = CANDIDATES + ("discretization", "initial_state"), min_shrink: float = 0.10,
              fit_rate_hz: float = 25e3, progress: bool = True, workers: Optional[int] = None,
-             search_rate_hz: float = 12.5e3) -> GapReport:
+             search_rate_hz: float = 12.5e3, refit_masses: bool = False) -> GapReport:
     """Diagnose the gap between the baseline model and the measurements.
 
     Parameters
@@ -60,8 +60,10 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
         Discretization level of the baseline.
     baseline : model, chain or stage (a file or an object), optional
         A model, or a model followed by effects, is refitted with its effects and the
-        candidates are added on top of it. Any other chain (a simulated stage) is scored
-        as the "before" only; the search then starts from a model fitted on ``train``.
+        candidates are added on top of it. Any other chain (a simulated stage: "my
+        simulator") is kept as it is, every block of it: the candidates are added behind
+        it, and the gap found is the one between the simulator and the stage measured
+        (``preisach.diagnose.kept``; the delay, low-pass, mode and drift candidates).
     candidates : effect names to try.
     min_shrink : float
         An effect is detected when adding it shrinks the holdout RMSE of the current
@@ -74,6 +76,11 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
         Candidate chains (the stepwise search) are fitted on the training record averaged
         down to about this rate. Averaging commutes with the dynamics, so this costs
         accuracy only through the finer details of the input between windows.
+    refit_masses : bool
+        With a kept simulator as ``baseline``: the masses of its hysteresis block are
+        refitted on ``train`` first (``n_h`` levels; the blocks before it give its
+        input, the series linear blocks after it are fitted behind), every other block
+        kept as it is.
     workers : int, optional
         Candidate fits (and a search's independent trials, while a CPU would otherwise
         idle) run in this many threads (default: up to 2, the CPUs available).
@@ -90,7 +97,7 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
     trials = Trials(workers)
     try:
         return _diagnose(train, holdouts, n_h, baseline, candidates, min_shrink, fit_rate_hz, progress,
-                         search_rate_hz, trials)
+                         search_rate_hz, trials, refit_masses)
     finally:
         trials.close()
 
@@ -98,7 +105,7 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
 def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
               baseline: Optional[Union[str, Path, Chain, PreisachModel]], candidates: Sequence[str],
               min_shrink: float, fit_rate_hz: float, progress: bool, search_rate_hz: float,
-              trials: Trials) -> GapReport:
+              trials: Trials, refit_masses: bool = False) -> GapReport:
     """The steps (``preisach.diagnose.steps``): prepare, reference, where, search, refine,
     the holdouts' own effects, report."""
     t_start = time.perf_counter()
@@ -111,9 +118,13 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
     base = steps.fit_baseline(tr, hos, n_h, baseline)
     if base.given is not None and base.given["refitted"]:
         n_h = base.model.n_h
-    fitter, fine, stride, sstride = steps.make_fitters(tr, n_h, fit_rate_hz, search_rate_hz, trials)
-    run = steps.Run(tr, hos, n_h, tuple(candidates), min_shrink, trials, say, base, fitter, fine, stride, sstride,
-                    search_rate_hz)
+    if base.kept is not None:
+        run = steps.kept_run(tr, hos, n_h, candidates, min_shrink, trials, say, base, fit_rate_hz, search_rate_hz,
+                             refit_masses)
+    else:
+        fitter, fine, stride, sstride = steps.make_fitters(tr, n_h, fit_rate_hz, search_rate_hz, trials)
+        run = steps.Run(tr, hos, n_h, tuple(candidates), min_shrink, trials, say, base, fitter, fine, stride,
+                        sstride, search_rate_hz)
     found, hyst_alone, nh2 = steps.reference(run)
     floors, where, sig = steps.where(run, found, hyst_alone, nh2)
     steps.search(run, found, floors)
@@ -127,12 +138,15 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
 
 def run_cli(args: argparse.Namespace) -> int:
     """``preisach diagnose TRAIN --holdout H ... --json REPORT.json [--save-model AUG.json]
-    [--plots DIR] [--n-h N] [--baseline MODEL|CHAIN|STAGE.json]``. Prints a short summary; user
+    [--plots DIR] [--n-h N] [--baseline MODEL|CHAIN|STAGE.json [--refit-masses]]``. Prints a short summary; user
     errors are raised as ValueError (the CLI prints them without a traceback)."""
     hold = list(getattr(args, "holdout", None) or [])
     if not hold:
         raise ValueError("--holdout: give at least one holdout record")
-    rep = diagnose(args.train, hold, n_h=getattr(args, "n_h", 40) or 40, baseline=getattr(args, "baseline", None))
+    if getattr(args, "refit_masses", False) and getattr(args, "baseline", None) is None:
+        raise ValueError("--refit-masses: needs --baseline (a simulator whose output the masses map)")
+    rep = diagnose(args.train, hold, n_h=getattr(args, "n_h", 40) or 40, baseline=getattr(args, "baseline", None),
+                   refit_masses=bool(getattr(args, "refit_masses", False)))
     from preisach.io import write_text
 
     write_text(args.json, rep.to_json() + "\n")

@@ -146,7 +146,7 @@ def holdout_halves(st: FitState, name: str, hos: list[Record], errors: Errors, t
     found and the masses used; ``_state``, ``_ranges``, ``_gain``, ``_record`` internal)
     and ``target`` (the holdout the effect shows most on)."""
     out = [np.empty(h.y.size) for h in hos]
-    folds = []
+    folds: list[dict[str, Any]] = []
     for k in (0, 1):
         sl = [slice(0, h.y.size // 2) if k == 0 else slice(h.y.size // 2, None) for h in hos]
         parts = [half(h, k) for h in hos]

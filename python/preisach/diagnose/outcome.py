@@ -7,6 +7,7 @@ from typing import Any
 
 from preisach.chain import Chain
 from preisach.diagnose.effects import FitState, export_state
+from preisach.diagnose.kept import saved_chain
 from preisach.diagnose.ranges import ends_at_bound
 from preisach.diagnose.report import GapReport, evidence_text
 from preisach.diagnose.search import calibrate_slow
@@ -17,12 +18,13 @@ SPLIT_NOTE = (
     "masses and effect parameters are fitted on the training record (the slow effects' calibration across "
     "records, the fast effects only the holdouts carry (see cross_fit: a mode, a low-pass or a rate effect "
     "fitted on half of a holdout and scored on the other halves of every holdout, the masses the training "
-    "record's; a delay fitted on some holdouts and scored on the others) and each holdout's initial_state (fitted on the part of it before its input swept the range, the one "
-    "exception to the next rule) excepted); every chain is scored on the holdouts, no sample with parameters "
-    "fitted on it. An effect is kept (stepwise) when it shrinks the holdout RMSE by min_shrink and by more "
-    "than half the noise floor, fits the training record better, after the first effect worsens none of the "
-    "parts (each holdout's halves) by more than 5 %, and has non-trivial parameters; an effect made redundant "
-    "by a later one is dropped. The holdouts thus pick the effects, so confirm on a further record")
+    "record's; a delay fitted on some holdouts and scored on the others) and each holdout's initial_state "
+    "(fitted on the part of it before its input swept the range, the one exception to the next rule) "
+    "excepted); every chain is scored on the holdouts, no sample with parameters fitted on it. An effect is "
+    "kept (stepwise) when it shrinks the holdout RMSE by min_shrink and by more than half the noise floor, "
+    "fits the training record better, after the first effect worsens none of the parts (each holdout's "
+    "halves) by more than 5 %, and has non-trivial parameters; an effect made redundant by a later one is "
+    "dropped. The holdouts thus pick the effects, so confirm on a further record")
 
 
 def effect_entry(run: Run, found: Found, fl: Floors, c: str, cal: FitState, final: FitState,
@@ -73,7 +75,7 @@ def build_report(run: Run, found: Found, fl: Floors, where: list[dict[str, Any]]
     user checks it on come later still), and the report."""
     cal = calibrate_slow(found.cur, [(r, slice(None)) for r in run.recs])
     final = export_state(cal)
-    aug = Chain(final.model, final.effects)
+    aug = Chain(final.model, final.effects) if run.base.kept is None else saved_chain(run.base.kept, cal)
     aug.sample_rate_hz = 1.0 / run.tr.dt  # the training record's: for per-sample runs (run_loop)
     accepted, tried = found.accepted, found.tried
     timing = final.effects.get("delay", {}).get("delay_s", 0.0) if "delay" not in accepted else 0.0
@@ -86,13 +88,15 @@ def build_report(run: Run, found: Found, fl: Floors, where: list[dict[str, Any]]
         baseline={"n_h": run.n_h, "rmse": base.rmse, "holdout_rmse": before,
                   "reference_interpolated_holdout_rmse": fl.ref_score,
                   "reference_finer_holdout_rmse": fl.hyst_alone, "repeatability_floor": fl.repeatability,
-                  "effects": list(base.effects), **({"given": base.given} if base.given is not None else {})},
+                  "effects": list(base.effects), **({"given": base.given} if base.given is not None else {}),
+                  **({"kept": {"blocks": base.kept.kinds(), "masses": run.masses}} if base.kept is not None else {})},
         where=where,
         split=split(run, found),
         effects=[effect_entry(run, found, fl, c, cal, final, sig) for c in order],
-        augmented={"effects": list(aug.effects), "holdout_rmse": found.score,
+        augmented={"effects": list(aug.effects) if base.kept is None else list(final.effects),
+                   "holdout_rmse": found.score,
                    "shrink": float(1 - found.score / before) if before > 0 else 0.0, "timing_s": float(timing)},
         seconds=seconds,
         search_ranges={n: {k: [b.lo, b.hi] for k, b in r.items()} for n, r in run.fitter.ranges.items()},
-        chain=aug, baseline_model=base.model, records=run.recs, base_residuals=base.residuals,
+        chain=aug, baseline_model=base.model, records=run.given_recs, base_residuals=base.residuals,
     )

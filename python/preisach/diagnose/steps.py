@@ -23,6 +23,7 @@ import numpy as np
 
 from preisach.chain import Chain, load
 from preisach.diagnose import crossfit as cf
+from preisach.diagnose import kept
 from preisach.diagnose.crossfit import consistent, holdout_delay
 from preisach.diagnose.effects import CANDIDATES, FitState, Record, rmse
 from preisach.diagnose.initial import concentrated, estimate, fitted_part, predict_from
@@ -45,6 +46,8 @@ class Baseline:
     effects: Effects
     given: Optional[dict[str, Any]]
     chain: Optional[Union[PreisachModel, Chain]]
+    #: A simulator kept as it is (any chain that is not a model followed by effects).
+    kept: Optional[Chain] = None
     residuals: dict[str, np.ndarray] = field(default_factory=dict)
     rmse: dict[str, float] = field(default_factory=dict)
     holdout_rmse: float = float("nan")
@@ -73,10 +76,18 @@ class Run:
     stride: int
     sstride: int
     search_rate_hz: float = 12.5e3
+    #: With a kept simulator: the records as given (``tr`` and ``hos`` then carry the
+    #: simulator's output as their input), and how its masses were treated.
+    original: Optional[list[Record]] = None
+    masses: str = ""
 
     @property
     def recs(self) -> list[Record]:
         return [self.tr] + self.hos
+
+    @property
+    def given_recs(self) -> list[Record]:
+        return self.original if self.original is not None else self.recs
 
     @property
     def halves(self) -> list[tuple[slice, slice]]:
@@ -208,7 +219,7 @@ def fit_baseline(tr: Record, hos: list[Record], n_h: int,
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             model = PreisachModel.fit(tr.u, tr.y, n_h)
-    b = Baseline(model, effects, given, bch)
+    b = Baseline(model, effects, given, bch, bch if isinstance(bch, Chain) and refit is None else None)
     for r in [tr] + hos:
         b.residuals[r.name] = r.y - b.predict(r)
         b.rmse[r.name] = rmse(b.residuals[r.name])
@@ -237,6 +248,30 @@ def make_fitters(tr: Record, n_h: int, fit_rate_hz: float, search_rate_hz: float
         # The slow effects' own searches on windows 4x longer (about 3 kHz).
         fitter.slow = Fitter(tr, n_h, rng, 4 * sstride, trials=trials)
     return fitter, fine, stride, sstride
+
+
+def kept_run(tr: Record, hos: list[Record], n_h: int, candidates: Sequence[str], min_shrink: float,
+             trials: Trials, say: Callable[[str], None], base: Baseline, fit_rate_hz: float,
+             search_rate_hz: float, refit_masses: bool) -> Run:
+    """The run behind a kept simulator (``preisach.diagnose.kept``): the records with its
+    output as input, an identity hysteresis fixed in front of the candidates, the
+    candidates its chain can carry. With ``refit_masses`` the simulator's hysteresis
+    masses are refitted on the training record first."""
+    assert base.kept is not None
+    masses = "as given"
+    if refit_masses:
+        base.kept = kept.refitted(base.kept, tr, n_h, fit_rate_hz)
+        masses = "refitted on the training record (every other block as given)"
+    recs, (lo, hi) = kept.through(base.kept, [tr] + hos)
+    ident = kept.identity(lo, hi, n_h)
+    stride = max(1, int(round(1.0 / (tr.dt * fit_rate_hz))))
+    sstride = max(stride, int(round(1.0 / (tr.dt * min(search_rate_hz, fit_rate_hz)))))
+    fitter = kept.KeptFitter(recs[0], ident, sstride, trials)
+    fine = kept.KeptFitter(recs[0], ident, stride, trials) if stride != sstride else fitter
+    names = [c for c in candidates if c in kept.KEPT_CANDIDATES]
+    say(f"the given chain ({' -> '.join(base.kept.kinds())}) kept as it is; masses {masses}")
+    return Run(recs[0], recs[1:], n_h, tuple(names), min_shrink, trials, say, base, fitter, fine, stride, sstride,
+               search_rate_hz, [tr] + hos, masses)
 
 
 # -- reference and where ---------------------------------------------------------------
@@ -269,7 +304,7 @@ def where(run: Run, found: Found, hyst_alone: float,
     floor = float(np.median([noise_floor(r.y - ref.predict(r)) for r in recs]))
     floor_j = noise_floor(run.fitter.y - run.fitter.predict(ref)) ** 2
     levels = np.linspace(*run.base.model.u_range, run.n_h + 1)
-    loc = [localize(r.name, r.t, r.u, run.base.residuals[r.name], r.dt, levels) for r in recs]
+    loc = [localize(r.name, r.t, r.u, run.base.residuals[r.name], r.dt, levels) for r in run.given_recs]
     sig = {}
     for r in recs:
         h = ref.predict(r)
