@@ -93,24 +93,19 @@ PAPER_POST = [{"type": "creep", "taus_s": [0.1, 1.0, 10.0, 100.0], "amplitudes":
 
 
 def _identified_through_true_effects() -> Any:
-    """n_h = 100 identified on the demo's identification record with the preset's true
-    linear part taken out (the record run through the chain inverse of an identity
-    hysteresis followed by that part, 3 kHz bandwidth), followed by that part."""
+    """n_h = 100 identified on the demo's identification record behind the preset's true
+    linear part (``refit_hysteresis``: the record with that part inverted), followed by
+    that part."""
     import preisach
     from preisach import demo
+    from preisach._refit import refit_hysteresis
     from preisach.sim import Stage
 
     u, n_sine = demo.identification_input(False)
-    stage = Stage.preset("paper")
-    y = demo._record(stage, u)[:n_sine]
-    lo, hi, n = -20.0, 80.0, 500  # µm; the identity on this range
-    identity = preisach.PreisachModel(np.diag(np.full(n, (hi - lo) / (2 * n))), (lo, hi), (lo + hi) / 2,
-                                      "interpolated")
-    linear = preisach.Chain.from_blocks(preisach.Chain(identity).blocks + PAPER_POST)
-    rest = 20000  # the record starts after 0.1 s at rest
-    h = linear.invert(np.concatenate([np.full(rest, y[0]), y]), FS, bandwidth_hz=3000.0)[rest:]
-    model = preisach.PreisachModel.fit(u[:n_sine], h, 100)
-    return preisach.Chain.from_blocks(preisach.Chain(model).blocks + PAPER_POST)
+    y = demo._record(Stage.preset("paper"), u)[:n_sine]
+    start = preisach.Chain.from_blocks(preisach.Chain(preisach.PreisachModel(np.eye(2), (0.0, 1.0), 0.0)).blocks
+                                       + PAPER_POST)
+    return refit_hysteresis(start, np.arange(n_sine) / FS, u[:n_sine], y, n_h=100)
 
 
 def paper(quick: bool) -> list[dict[str, Any]]:
