@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 from independent_stage import draw_effects, true_hysteresis
 from independent_stage import simulate as independent_simulate
-
 from preisach import Chain, PreisachModel
 from preisach._refit import hysteresis_output, refit_hysteresis
 

@@ -329,7 +329,8 @@ def _track(res: DemoResult, stage: Any, label: str, mdl: Any, fr: float, method:
     return {"t": np.arange(r.size) / FS, "r": r, "u": lr.u, "y": lr.y}
 
 
-def _compensate_with(chain: Any, res: DemoResult, track: Any, record: tuple[NDArray[np.float64], ...]) -> None:
+def _compensate_with(chain: Any, res: DemoResult, track: Any,
+                     record: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]) -> None:
     """The 5 Hz and 50 Hz runs with the chain inverse of ``chain`` (at the loop's rate),
     its hysteresis identified again at n_h = 100 on ``record`` (t, u, y: the
     identification sine) behind the linear part the diagnosis found; or a warning in the
@@ -345,7 +346,8 @@ def _compensate_with(chain: Any, res: DemoResult, track: Any, record: tuple[NDAr
         return
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", preisach.PreisachWarning)
-        c = refit_hysteresis(c, *record, n_h=100)
+        t, u, y = record
+        c = refit_hysteresis(c, t, u, y, n_h=100)
     for fr in (5.0, 50.0):
         track(f"diagnosed chain  {fr:g} Hz  chain inverse", c, fr, "continuous")
 
