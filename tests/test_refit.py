@@ -89,6 +89,37 @@ def test_refit_behind_the_true_linear_part_tracks_on_the_independent_stage(seed)
     assert _tracking_error(got, simulate, truth, 1.0, 5.0) < 0.02
 
 
+def test_refit_fits_the_hysteresis_input_behind_the_blocks_before_it():
+    """An amplifier's gain and a low-pass before the hysteresis: the refitted model maps
+    the hysteresis input (the chain's input through them), so the chain predicts the
+    record."""
+    rng = np.random.default_rng(8)
+    truth = true_hysteresis(rng, n_h=80)
+    lo, hi = truth.u_range
+    pre = [{"type": "amplifier", "gain": 4.0}, {"type": "lowpass", "cutoff_hz": 3000.0, "order": 1}]
+    post = Chain(None, {"vibration": {"frequency_hz": 900.0, "damping": 0.03}}).blocks
+    stage = Chain.from_blocks(pre + Chain(truth).blocks + post)
+    t, u = _identification(PreisachModel(truth.weights, (lo / 4, hi / 4), truth.offset))
+    y = stage.simulate(t, u)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        start = Chain.from_blocks(pre + Chain(PreisachModel.fit(4 * u, y, 10)).blocks + post)
+        got = refit_hysteresis(start, t, u, y, n_h=60)
+    assert got.kinds() == ["amplifier", "lowpass", "hysteresis", "vibration"]
+    assert abs(got.model.u_range[1] - 4 * u.max()) < 0.05 * (hi - lo)  # the model's input is the amplified one
+    span = float(y.max() - y.min())
+    assert np.sqrt(np.mean((got.predict(t, u) - y) ** 2)) < 0.01 * span
+
+
+def test_refit_names_a_nan_in_the_record():
+    chain = Chain(PreisachModel(np.eye(4), (0.0, 1.0), 0.0, "interpolated"))
+    t = np.arange(100) / FS
+    y = np.sin(t)
+    y[17] = np.nan
+    with pytest.raises(ValueError, match="y: .*17"):
+        refit_hysteresis(chain, t, t, y)
+
+
 def test_refit_refuses_a_chain_without_one_hysteresis_and_mismatched_lengths():
     t = np.arange(100) / FS
     with pytest.raises(ValueError, match="exactly one hysteresis"):
