@@ -183,11 +183,14 @@ def refit_creep(chain: Chain, records: Sequence[Record], taus_s: Optional[Sequen
     for t, u, y in recs:
         x = Chain.from_blocks(upto).predict(t, u)
         z = hysteresis_output(post[k:], y, 1.0 / sample_period(t))
-        # Each record's mean is left out: its offset is the masses' business.
-        col = np.column_stack([_element(tau).predict(t, x) - x for tau in taus])
-        cols.append(col - col.mean(axis=0))
-        rhs.append(z - x - np.mean(z - x))
-    c = nnls(np.concatenate(cols), np.concatenate(rhs))
+        # Each record's mean is left out and a gain (either sign) is fitted with the
+        # elements: offset and gain are the masses' business. Records weigh alike.
+        col = np.column_stack([x, -x] + [_element(tau).predict(t, x) - x for tau in taus])
+        w = 1.0 / np.sqrt(t.size)
+        cols.append(w * (col - col.mean(axis=0)))
+        rhs.append(w * (z - x - np.mean(z - x)))
+    sol = nnls(np.concatenate(cols), np.concatenate(rhs))
+    c = sol[2:] / (1.0 + sol[0] - sol[1])
     keep = c > 0
     creep = [{"type": "creep", "taus_s": [float(v) for v in taus[keep]],
               "amplitudes": [float(v) for v in c[keep]], "normalized": True}] if keep.any() else []
