@@ -11,7 +11,8 @@ Three parts, printed as Markdown tables under the machine line:
 2. **The ``paper`` preset** as ``preisach demo`` runs it (n_h = 100 identified, 10 µm
    references at 5 Hz and 50 Hz, the demo's peak error after the lead-in and one period),
    with the chain the diagnosis found (its hysteresis refitted at n_h = 100 behind its
-   linear part, as the demo compensates) and with the preset's true linear part after an
+   linear part and its creep refitted behind that on the demo's held steps, as the demo
+   compensates) and with the preset's true linear part after an
    n_h = 100 model refitted behind it the same way (this separates the diagnosis's error
    from the inverse's).
 3. **The independent rig** (``tests/rig.py``: no project block, a generalized
