@@ -168,7 +168,7 @@ def main() -> int:
     held = (np.arange(uc.size) / FS, uc, demo._record(Stage.preset("paper"), uc))
     start = preisach.Chain.from_blocks(dac + tm + [b for b in post if b["type"] != "creep"])
     chain = refit_hysteresis(start, t, us, y, n_h=100, creep_records=[held])
-    cr = chain.effects.get("creep", {"taus_s": [], "amplitudes": []})
+    cr = next((b for b in chain.blocks if b["type"] == "creep"), {"taus_s": [], "amplitudes": []})
     fitted = ", ".join(f"{tau:.3g} s {c * 100:.2f} %" for tau, c in zip(cr["taus_s"], cr["amplitudes"]))
     row(f"n_h = 100 and creep refitted (`creep_records`: the demo's two 2 s holds; found {fitted or 'none'})",
         chain, full)

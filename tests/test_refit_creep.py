@@ -70,6 +70,24 @@ def test_creep_fitted_on_held_steps_improves_compensation_on_the_project_simulat
     assert errs[1] < 0.6 * errs[0], errs
 
 
+def test_creep_fitted_between_the_hysteresis_and_a_mode_and_a_delay():
+    """The blocks after the creep (a mode, a delay) are inverted out of the target and kept
+    after the fitted bank."""
+    rng = np.random.default_rng(3)
+    truth = true_hysteresis(rng, n_h=60)
+    after = {"vibration": {"frequency_hz": 400.0, "damping": 0.05}, "delay": {"delay_s": 1e-3}}
+    creep = {"taus_s": [0.08, 0.6], "amplitudes": [0.03, 0.03]}
+    stage = Chain(truth, {"creep": creep, **after})
+    t, u = _ident(truth, FS)
+    th, uh = _holds(truth, FS, 1.5)
+    rec, hold = (t, u, stage.simulate(t, u)), (th, uh, stage.simulate(th, uh))
+    plain, crept = _fit(Chain(PreisachModel.fit(u, rec[2], 10), after), rec, [hold])
+    assert crept.kinds() == ["hysteresis", "creep", "vibration", "delay"]
+    lo, hi = float(rec[2].min()), float(rec[2].max())
+    errs = [_error(c, stage.simulate, 0.5 * (lo + hi), 0.3 * (hi - lo), FS) for c in (plain, crept)]
+    assert errs[1] < 0.6 * errs[0], errs
+
+
 @pytest.mark.parametrize("seed", [1, 2])
 def test_creep_fit_improves_compensation_on_the_independent_rig(seed):
     case = make_case("creep", seed)

@@ -30,8 +30,10 @@ from preisach.model import DIAGONAL_FLOOR, PreisachModel
 
 Record = tuple[Any, Any, Any]
 
-#: Levels of the identity hysteresis that carries the linear part's inverse.
-_IDENTITY_LEVELS = 1000
+#: Levels of the identity hysteresis that carries the linear part's inverse (with
+#: diagonal masses only its interpolated output is exactly its input at any level count;
+#: a few keep the chain's JSON small).
+_IDENTITY_LEVELS = 50
 #: Shortest creep time constant of the bank, seconds (faster is a low-pass's business).
 CREEP_TAU_MIN_S = 0.01
 #: Creep time constants per decade in the bank.
