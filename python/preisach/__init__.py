@@ -8,6 +8,8 @@ Rust core (``preisach._preisach``) with a thin Python API:
 - :class:`Chain`: blocks in series (a stage, a model, a model plus effects), with
   ``predict`` / ``simulate`` on records, ``invert`` / ``inverter`` (feed-forward through
   the whole chain); :func:`load` reads any model, chain or stage file;
+  :func:`refit_hysteresis` identifies a chain's hysteresis again behind its linear part (and
+  :func:`refit_creep` its creep behind the hysteresis);
 - :func:`read_record`: a record (CSV ``t,u,y`` or ``.npz``) as arrays;
 - :func:`compare`: a model's fit on a record (fit %, RMSE, max error), as MATLAB's
   ``compare``; :mod:`preisach.plots` draws it;
@@ -21,6 +23,7 @@ from __future__ import annotations
 from preisach import plots, sim
 from preisach._chain_inverse import ChainInversionInfo, ChainInverter
 from preisach._preisach import __version__
+from preisach._refit import refit_creep, refit_hysteresis
 from preisach.chain import Chain, load
 from preisach.comparison import Comparison, compare, fit_percent
 from preisach.diagnose import GapReport, diagnose
@@ -29,4 +32,4 @@ from preisach.model import FitReport, FittedModel, PreisachModel, PreisachWarnin
 
 __all__ = ["Chain", "ChainInversionInfo", "ChainInverter", "Comparison", "FitReport", "FittedModel", "GapReport",
            "PreisachModel", "PreisachWarning", "Stream", "__version__", "compare", "diagnose", "fit_percent", "load",
-           "plots", "read_record", "sim"]
+           "plots", "read_record", "refit_creep", "refit_hysteresis", "sim"]
