@@ -266,3 +266,49 @@ def test_the_diagnosed_chain_compensates_the_independent_rig(seed):
             y = case["rig"].record(np.clip(u, 0.0, 10.0), fs, rng=np.random.default_rng(0))["y"]
             err[name] = float(np.abs(r - y)[REST + int(fs / f_hz):-50].max() / amp)
         assert err["chain"] < goal and err["chain"] < 0.5 * err["hysteresis"], (f_hz, err)
+
+
+def _amplified(model: PreisachModel, gain: float, **amp: object) -> Chain:
+    h = Chain(model).blocks[0]
+    return Chain.from_blocks([{"type": "amplifier", "gain": gain, **amp}, h,
+                              {"type": "lowpass", "cutoff_hz": 800.0, "order": 1}])
+
+
+def test_inputs_beyond_the_amplifier_saturation_and_the_dac_range_are_clipped_counted_and_reported():
+    rng = np.random.default_rng(5)
+    model = true_hysteresis(rng, n_h=30)
+    lo, hi = model.u_range
+    gain = float(rng.uniform(2.0, 20.0))
+    # The amplifier passes only the lower 70 % of the hysteresis's input range.
+    top = lo + 0.7 * (hi - lo)
+    free = _amplified(model, gain)
+    sat = _amplified(model, gain, saturation=[lo, top])
+    r = _reference(model, 1.0, 20.0, 4000, rng)
+    u_free = free.invert(r, FS)
+    over = u_free > top / gain
+    assert over.any() and not over.all()  # the oracle: the same chain without the limit
+    with pytest.warns(preisach.PreisachWarning, match=rf"{over.sum()} of {r.size} inputs were clipped .* "
+                                                     rf"\(first at index {np.argmax(over)}\)"):
+        u, info = sat.invert(r, FS, return_info=True)
+    np.testing.assert_array_equal(u, np.minimum(u_free, top / gain))
+    assert info.clipped == over.sum()
+    inv = sat.inverter(FS)
+    assert inv.input_limits == pytest.approx(tuple(sorted((lo / gain, top / gain))))
+    streamed = np.concatenate([inv.process(r[:1000]), [inv.step(x) for x in r[1000:]]])
+    np.testing.assert_array_equal(streamed[inv.latency:], u[:r.size - inv.latency])
+    assert inv.clipped == over[:r.size - inv.latency].sum() + int((streamed[:inv.latency] >= top / gain).sum())
+    # A DAC quantizer's range in front of the amplifier limits the input the same way.
+    dac = Chain.from_blocks([{"type": "quantizer", "bits": 16, "range": [0.0, top / gain]}] + free.blocks)
+    assert dac.inverter(FS).input_limits == pytest.approx((0.0, top / gain))
+
+
+def test_a_reference_inside_the_amplifier_range_is_not_clipped():
+    rng = np.random.default_rng(6)
+    model = true_hysteresis(rng, n_h=30)
+    chain = _amplified(model, 4.0, saturation=[model.u_range[0] - 1.0, model.u_range[1] + 1.0])
+    r = _reference(model, 1.0, 20.0, 3000, rng)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        u, info = chain.invert(r, FS, return_info=True)
+    assert info.clipped == 0
+    np.testing.assert_array_equal(u, _amplified(model, 4.0).invert(r, FS))

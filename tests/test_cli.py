@@ -375,3 +375,17 @@ def test_invert_reports_clipped_references_in_one_line_on_stderr(tmp_path, recor
     assert "first at index 50," in err[0]
     u = np.loadtxt(tmp_path / "u.csv", delimiter=",", skiprows=1)[:, 1]
     np.testing.assert_allclose(u[[50, 51, 120]], [10.0, 0.0, 10.0], atol=1e-12)
+
+
+def test_invert_names_the_file_of_a_chain_that_cannot_be_inverted(tmp_path, capsys):
+    from preisach.sim import Stage
+
+    stage = tmp_path / "stage.json"
+    Stage.preset("paper").save(stage)  # its hysteresis is parametric: no inverse
+    t = np.arange(50) / 1e4
+    np.savetxt(tmp_path / "ref.csv", np.column_stack([t, np.linspace(1.0, 2.0, 50)]), delimiter=",",
+               header="t,r", comments="")
+    assert main(["invert", str(stage), str(tmp_path / "ref.csv"), "-o", str(tmp_path / "u.csv")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"preisach: error: {stage}: blocks[") and "cannot be inverted" in err[0]
+    assert not (tmp_path / "u.csv").exists()

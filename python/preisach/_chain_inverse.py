@@ -40,6 +40,7 @@ class ChainInversionInfo:
         preview_s: the chain's delay plus the low-pass's group delay, seconds.
         bandwidth_hz: the bandwidth of the linear inverse.
         saturated: references whose hysteresis output is outside the model's reachable range.
+        clipped: inputs clipped to the range the chain accepts (see :attr:`ChainInverter.input_limits`).
     """
 
     method: str
@@ -47,6 +48,7 @@ class ChainInversionInfo:
     preview_s: float
     bandwidth_hz: float
     saturated: int
+    clipped: int = 0
 
 
 def _fs(sample_rate_hz: Any) -> float:
@@ -56,6 +58,30 @@ def _fs(sample_rate_hz: Any) -> float:
     if not np.isfinite(fs) or fs <= 0:
         raise ValueError(f"fs: must be finite and > 0, got {fs}")
     return fs
+
+
+def input_limits(blocks: list[dict[str, Any]]) -> Optional[tuple[float, float]]:
+    """The chain inputs the blocks before the hysteresis accept without clipping: a
+    quantizer's ``range`` (the DAC) and an amplifier's ``saturation``, each taken back to
+    the chain's input through the static gains in front of it; None if nothing clips."""
+    from preisach.chain import Chain
+
+    lo, hi, gain = -np.inf, np.inf, 1.0
+    for b in blocks:
+        kind = b["type"]
+        if kind == "hysteresis":
+            break
+        if kind == "amplifier":
+            gain *= float(b.get("gain", 1.0))
+        elif kind in ("noise", "quantizer", "drift"):
+            pass
+        else:
+            gain *= float(np.real(Chain.from_blocks([b]).response(np.array([0.0]))[0]))
+        limits = b.get("range") if kind == "quantizer" else b.get("saturation") if kind == "amplifier" else None
+        if limits is not None and gain != 0.0 and np.isfinite(gain):
+            a, c = sorted((float(limits[0]) / gain, float(limits[1]) / gain))
+            lo, hi = max(lo, a), min(hi, c)
+    return (lo, hi) if np.isfinite(lo) or np.isfinite(hi) else None
 
 
 def _opt_int(name: str, x: Any) -> Optional[int]:
@@ -92,6 +118,15 @@ class ChainInverter:
         self._fs = _fs(fs)
         self._stream = _preisach.ChainInverseStream(chain._core, self._fs, method, _opt_int("lookahead", lookahead),
                                                     _opt_bandwidth(bandwidth_hz))
+        limits = input_limits(chain.blocks)
+        self._lo, self._hi = limits if limits is not None else (-np.inf, np.inf)
+        self._clipped = 0
+        self._first_clipped: Optional[int] = None
+
+    def _clip(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
+        out = np.clip(u, self._lo, self._hi)
+        self._clipped += int(np.count_nonzero(out != u))
+        return out
 
     @property
     def method(self) -> str:
@@ -130,19 +165,36 @@ class ChainInverter:
         """References so far whose hysteresis output was outside the model's reachable range."""
         return int(self._stream.saturated)
 
+    @property
+    def input_limits(self) -> Optional[tuple[float, float]]:
+        """The chain inputs its blocks before the hysteresis pass unclipped (a quantizer's
+        ``range``, an amplifier's ``saturation``, through the static gains in front of
+        them); outputs are clipped to it. None if the chain states no limit."""
+        return None if (self._lo, self._hi) == (-np.inf, np.inf) else (float(self._lo), float(self._hi))
+
+    @property
+    def clipped(self) -> int:
+        """Inputs so far clipped to :attr:`input_limits`."""
+        return self._clipped
+
     def step(self, r: float) -> float:
         """One reference sample in, the input ``latency`` samples earlier out."""
-        return float(self._stream.step(float(r)))
+        u = float(self._stream.step(float(r)))
+        if not self._lo <= u <= self._hi:
+            self._clipped += 1
+            u = min(max(u, self._lo), self._hi)
+        return u
 
     def process(self, block: ArrayLike) -> NDArray[np.float64]:
         """A block of reference samples in, as many input samples out (as :meth:`step`
         on each); a non-finite sample raises, naming its index, before any state changes."""
-        return self._stream.process(_as_signal("r", block))  # type: ignore[no-any-return]
+        return self._clip(self._stream.process(_as_signal("r", block)))
 
     def reset(self) -> None:
         """Back to the start: filters at rest with the next reference, the hysteresis
         inverse at negative saturation, time 0."""
         self._stream.reset()
+        self._clipped = 0
 
     @property
     def state(self) -> dict[str, Any]:
@@ -151,7 +203,7 @@ class ChainInverter:
         inverse's state (``memory``, ``saturated``, ``t``, ``u_prev``, ``last_cm``,
         ``knot_t``, ``knot_v``, ``r_prev``, as :attr:`preisach.Inverter.state`). Assign it
         back to this or an inverter built the same way to resume exactly."""
-        return dict(self._stream.get_state())
+        return dict(self._stream.get_state(), clipped=self._clipped)
 
     @state.setter
     def state(self, s: dict[str, Any]) -> None:
@@ -165,12 +217,17 @@ class ChainInverter:
                                _as_signal("state", s["pre"]), _as_signal("state", s["memory"]), int(s["saturated"]),
                                int(s["t"]), float(s["u_prev"]), float(s["last_cm"]), knot_t,
                                _as_signal("state", s["knot_v"]), float(s["r_prev"]))
+        self._clipped = int(s.get("clipped", 0))
 
     def invert(self, r: ArrayLike) -> tuple[NDArray[np.float64], int]:
         """The whole reference offline (the inverter is reset first): ``(u, saturated)``,
-        ``u[n]`` the input for ``r[n]``."""
+        ``u[n]`` the input for ``r[n]``, clipped to :attr:`input_limits` (counted in
+        :attr:`clipped`)."""
         u, sat = self._stream.invert(_as_signal("r", r))
-        return u, int(sat)
+        out = np.clip(u, self._lo, self._hi)
+        self._clipped = int(np.count_nonzero(out != u))
+        self._first_clipped = int(np.argmax(out != u)) if self._clipped else None
+        return out, int(sat)
 
     def __repr__(self) -> str:
         return (f"ChainInverter(method={self.method!r}, latency={self.latency}, "

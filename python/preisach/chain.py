@@ -319,7 +319,8 @@ class Chain:
         A NaN or inf in ``r`` raises ``ValueError`` naming its index; so does a chain
         that cannot be inverted (naming the block). References that ask the hysteresis
         for an output beyond its reachable range are clipped, counted and reported in one
-        :class:`~preisach.PreisachWarning`."""
+        :class:`~preisach.PreisachWarning`; so are inputs beyond what the chain's
+        amplifier (``saturation``) or DAC (a quantizer's ``range``) accepts."""
         from preisach._chain_inverse import ChainInversionInfo
 
         rr = as_signal("r", r)
@@ -331,9 +332,16 @@ class Chain:
             warnings.warn(f"{sat} of {rr.size} reference samples ask the hysteresis for an output beyond its "
                           "reachable range: they were clipped (the input stays at the end of u_range there)",
                           PreisachWarning, stacklevel=2)
+        if inv.clipped:
+            from preisach.model import PreisachWarning
+
+            lo, hi = inv.input_limits or (-np.inf, np.inf)
+            first = inv._first_clipped
+            warnings.warn(f"{inv.clipped} of {rr.size} inputs were clipped to the range the chain's amplifier/DAC "
+                          f"accepts, [{lo:g}, {hi:g}] (first at index {first})", PreisachWarning, stacklevel=2)
         if return_info:
             return u, ChainInversionInfo(method=inv.method, latency=inv.latency, preview_s=inv.preview_s,
-                                         bandwidth_hz=inv.bandwidth_hz, saturated=sat)
+                                         bandwidth_hz=inv.bandwidth_hz, saturated=sat, clipped=inv.clipped)
         return u
 
     # --- per sample at the chain's own rate ------------------------------------------

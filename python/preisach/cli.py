@@ -147,8 +147,13 @@ def _cmd_invert(a: argparse.Namespace) -> int:
             done = f", method {a.method}"
         else:
             fs = 1.0 / sample_period(rec["t"], "t")
-            u, info = obj.invert(rec["r"], fs, method=a.method, bandwidth_hz=a.bandwidth, lookahead=a.lookahead,
-                                 return_info=True)
+            try:
+                u, info = obj.invert(rec["r"], fs, method=a.method, bandwidth_hz=a.bandwidth, lookahead=a.lookahead,
+                                     return_info=True)
+            except ValueError as e:
+                if str(e).startswith("blocks["):  # a block of the file that cannot be inverted
+                    raise ValueError(f"{a.model}: {e}") from None
+                raise
             done = (f"; chain inverse of {' -> '.join(obj.kinds())}, hysteresis method {a.method}, bandwidth "
                     f"{info.bandwidth_hz:.6g} Hz, preview {info.preview_s * 1e3:.4g} ms, latency {info.latency} "
                     "samples when streamed")
