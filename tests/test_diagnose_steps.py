@@ -129,7 +129,7 @@ def test_repeats_of_the_identification_run_on_the_simulated_stage_give_none():
     from preisach.diagnose import diagnose
     from preisach.sim import Stage
 
-    fs, rng = 50e3, np.random.default_rng(2)
+    fs = 50e3
     n = int(1.0 * fs)
     u = 3.75 - 3.6 * np.linspace(0.05, 1, n) * np.cos(2 * np.pi * 4.0 * np.arange(n) / fs)
     recs = []
