@@ -30,6 +30,7 @@ from typing import Any, Optional, Sequence, Union
 import numpy as np
 
 from preisach.chain import Chain, load, sample_period
+from preisach.diagnose import rest
 from preisach.diagnose.crossfit import consistent, holdout_delay
 from preisach.diagnose.effects import CANDIDATES, FitState, Record, export_state, rate_branch, rmse
 from preisach.diagnose.initial import concentrated, estimate, fitted_part, predict_from
@@ -242,14 +243,18 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
         records for each half of the holdouts, from the training record and the other
         halves (cross-fitting; see ``calibrate_slow``)."""
         if "drift" not in st.effects and "creep" not in st.effects:
-            return [st.predict(h) - h.y for h in hos]
+            return rest_removed(st, [st.predict(h) - h.y for h in hos])
         errs = [np.empty(h.y.size) for h in hos]
         outputs: dict[int, np.ndarray] = {}
         for k in (0, 1):
             cal = calibrate_slow(st, [(tr, slice(None))] + [(h, hv[1 - k]) for h, hv in zip(hos, halves)], outputs)
             for e, h, hv in zip(errs, hos, halves):
                 e[hv[k]] = (cal.predict(h) - h.y)[hv[k]]
-        return errs
+        return rest_removed(st, errs)
+
+    def rest_removed(st: FitState, errs: list[np.ndarray]) -> list[np.ndarray]:
+        # A holdout that starts with a step from rest: the chain's transient removed.
+        return [rest.remove(st, h, e)[0] for h, e in zip(hos, errs)]
 
     def score_parts(st: FitState) -> tuple[float, np.ndarray]:
         """Holdout RMSE overall and on each half of each holdout (the acceptance rule
@@ -284,6 +289,12 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
     if tr.u.size // (4 * sstride) >= 4000:
         # The slow effects' own searches on windows 4x longer (about 3 kHz).
         fitter.slow = Fitter(tr, n_h, rng, 4 * sstride, trials=trials)
+
+    # A training record that starts with a step from rest: its transient is fitted with
+    # the masses in every chain (``preisach.diagnose.rest``).
+    for f_ in (fitter, fine, fitter.slow):
+        if f_ is not None:
+            f_.rest = rest.starts_with_step(base_res[tr.name], tr.dt)
 
     def excess_floor(st: FitState) -> float:
         return noise_floor(fitter.y - fitter.predict(st)) ** 2
@@ -474,7 +485,7 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
     with ThreadPoolExecutor(max_workers=1) as ex:
         fut = ex.submit(finer, cur) if disc else None
         pre_score, pre_parts = cur_score, cur_parts
-        if fine is not fitter and (accepted or base_effects):
+        if accepted or base_effects:
             # (Local steps only: the valley between a delay and a low-pass was searched on the
             # coarser average. Creep is left as searched when the chain has a mode: each trial
             # of it is a solve behind the resonance at the finer average, and the mode's
@@ -563,6 +574,12 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
             accepted.append("initial_state")
             cur_score = sc
 
+    # The rest input before each record that starts with a step from rest (the chain's
+    # transient explains its start), and that start localized as after a step.
+    rests = rest.rest_inputs(cur, recs, (u_lo, u_hi))
+    where = [localize(r.name, r.t, r.u, base_res[r.name], r.dt, levels, rests.get(r.name, {}).get("rest_input"))
+             for r in recs]
+
     # The saved chain's slow effects are calibrated on every record (the further records
     # the user checks it on come later still).
     cal = calibrate_slow(cur, [(r, slice(None)) for r in recs])
@@ -585,6 +602,10 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
             # after it was accepted); a refused one's those of its own candidate fit.
             src = final if c in accepted and c in final.effects else export_state(d["state"])
             params = {k: v for k, v in src.effects[c].items() if not k.startswith("_")}
+            if c in accepted and rests and c in ("vibration", "lowpass"):
+                # The step from rest at each record's start that its transient explains.
+                params["rest_input"] = {n: v["rest_input"] for n, v in rests.items()}
+                params["rest_step"] = {n: v["rest_step"] for n, v in rests.items()}
         effects_out.append({
             "name": c, "detected": c in accepted, "score": float(d["score"]),
             "evidence": evidence_text(c, sig, tr.name, [h.name for h in hos], floor, d),
@@ -623,6 +644,7 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
                        "on a further record"},
         effects=effects_out,
         augmented={"effects": list(aug.effects), "holdout_rmse": cur_score,
+                   "rest_input": {n: v["rest_input"] for n, v in rests.items()},
                    "shrink": float(1 - cur_score / hold_before) if hold_before > 0 else 0.0,
                    "timing_s": float(timing)},
         seconds=time.perf_counter() - t_start,
