@@ -30,7 +30,7 @@ from typing import Any, Optional, Sequence, Union
 import numpy as np
 
 from preisach.chain import Chain, load, sample_period
-from preisach.diagnose import rest
+from preisach.diagnose import lag, rest
 from preisach.diagnose.crossfit import consistent, holdout_delay
 from preisach.diagnose.effects import CANDIDATES, FitState, Record, export_state, rate_branch, rmse
 from preisach.diagnose.initial import concentrated, estimate, fitted_part, predict_from
@@ -44,6 +44,9 @@ __all__ = ["diagnose", "GapReport", "run_cli", "CANDIDATES"]
 
 RecordLike = Union[str, "Path", dict, tuple, list]
 
+
+#: Why a low-pass that does no better than a delay of its lag is refused.
+TIMING = "no better than a delay of its lag (the record's timing)"
 
 #: Candidates in the order their fits are started: the slowest first (a mode's fit is the
 #: longest; the quick ones fill the other thread), so the round ends with both busy.
@@ -438,6 +441,8 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
                 why = "trivial parameters"
             elif ends_at_bound(c, st.effects[c], fitter.ranges):
                 why = "at its search bound: " + "; ".join(ends_at_bound(c, st.effects[c], fitter.ranges))
+            elif c == "lowpass" and not lag.beats_its_delay(score, st, sc, min_shrink, floor_acc)[0]:
+                why = TIMING  # (``preisach.diagnose.lag``)
             if why is None:
                 passing.append((not strong, sc, c))
             else:
@@ -450,7 +455,9 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
         cur, cur_score, cur_parts = results[best][0], results[best][1], results[best][2]
         for x in cur.effects:
             if x not in accepted and x not in base_effects and not trivial(x, cur.effects[x]) \
-                    and not ends_at_bound(x, cur.effects[x], fitter.ranges):
+                    and not ends_at_bound(x, cur.effects[x], fitter.ranges) \
+                    and not (x == "lowpass" and not lag.beats_its_delay(score, cur, cur_score, min_shrink,
+                                                                         floor_acc)[0]):
                 # Fitted with it as a pair (a mode whose ringing needed a delay).
                 accepted.append(x)
                 tried[x] = dict(tried[best], score=tried.get(x, {}).get("score", tried[best]["score"]))

@@ -1,0 +1,39 @@
+"""A low-pass or a delay: the record's timing is not a low-pass.
+
+At the frequencies a record excites well below its cutoff, a low-pass acts as a delay of
+its group delay: a capture's own lag (a sample of ADC latency, half a sample of the
+DAC's hold, an anti-aliasing filter near Nyquist) is fitted as well by either. Such a
+"low-pass" is the record's timing, not a stage's filter. A low-pass is an effect only
+where it beats the chain with the same lag as a pure delay (its group delay added to
+the chain's delay) by the rule any candidate
+must pass: it shrinks that chain's holdout RMSE by ``min_shrink`` and by more than half
+the floor (noise or repeatability). The two chains share the masses: only the block
+differs. A low-pass in the band of the records' excitation
+does: it loses gain as well as phase, which no delay does.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable
+
+from preisach.diagnose.effects import FitState
+from preisach.diagnose.search import group_delay
+
+Effects = dict[str, dict[str, Any]]
+
+
+def delay_equivalent(eff: Effects) -> Effects:
+    """The chain with its low-pass replaced by a delay of the low-pass's group delay
+    (added to the chain's delay)."""
+    e = {k: dict(v) for k, v in eff.items() if k != "lowpass"}
+    d0 = float(eff.get("delay", {}).get("delay_s", 0.0))
+    e["delay"] = {"delay_s": d0 + group_delay(eff["lowpass"])}
+    return e
+
+
+def beats_its_delay(score: Callable[[FitState], float], st: FitState, sc: float, min_shrink: float,
+                    floor: float) -> tuple[bool, float]:
+    """Whether the chain ``st`` (holdout RMSE ``sc``) beats its delay equivalent (the same
+    masses: the holdout error of masses refitted elsewhere moves with the fit itself) by
+    the candidates' rule; returns that and the equivalent's holdout RMSE."""
+    sc_d = score(FitState(st.model, delay_equivalent(st.effects), st.train_rmse))
+    return sc_d - sc >= max(min_shrink * sc_d, 0.5 * floor), sc_d
