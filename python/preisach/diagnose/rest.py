@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from preisach.chain import Chain
 from preisach.diagnose.effects import FitState, Record, _grid_then_parabola, rmse
+from preisach.diagnose.initial import concentrated
 
 #: The blocks whose step response the rest step excites within a record's start (creep's
 #: slow one is left out: a slow transient at the start is unrecorded history's, or a
@@ -63,18 +64,12 @@ def amplitude(err: NDArray[np.float64], col: NDArray[np.float64]) -> float:
     return float(-(err @ col) / den) if den > 0 else 0.0
 
 
-def concentrated(before: float, after: float, rest: float) -> bool:
-    """The start carries an error of its own (at least twice the rest of the record's
-    RMSE) that the transient halves at least: a step at the start, not an error that
-    runs along the record."""
-    return before >= 2.0 * rest and after <= 0.5 * before
-
-
 def remove(st: FitState, rec: Record, err: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
     """The record's error (chain minus measured) with the rest step's transient fitted on
     the record's start and removed, and its amplitude ``A``; the error unchanged and
     ``A = 0`` where the chain has no fast dynamics or the start shows no step of its
-    own (``concentrated``)."""
+    own (``concentrated``: the start errs at least twice the rest of the record's RMSE,
+    and the transient halves that)."""
     col = transient(st.effects, rec.t)
     if col is None:
         return err, 0.0
