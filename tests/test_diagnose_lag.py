@@ -1,6 +1,6 @@
-"""diagnose: a low-pass is an effect only where it beats a delay of its lag (the record's
-timing: a capture's latency and anti-aliasing filter act as a delay of a couple of
-samples). On the project's simulator (``preisach.sim.Stage``, random parameters) with a
+"""diagnose: a low-pass of a lag of two samples or less is an effect only where it beats
+a delay of its lag (the record's timing: a capture's latency and anti-aliasing filter
+act as a delay of a couple of samples). On the project's simulator (``preisach.sim.Stage``, random parameters) with a
 real low-pass (found) and a small delay (found as a delay), and on the independent rig
 with nothing but its capture lag (not a low-pass)."""
 import math
@@ -66,3 +66,20 @@ def test_the_rigs_capture_lag_is_not_a_lowpass():
     rep = diagnose(tr, hos, progress=False)
     lp = next(e for e in rep.effects if e["name"] == "lowpass")
     assert not lp["detected"], lp
+
+
+def test_only_a_lag_of_two_samples_or_less_is_compared_with_its_delay():
+    from preisach import PreisachModel
+    from preisach.diagnose.effects import FitState
+    from preisach.diagnose.lag import is_timing
+
+    st = FitState(PreisachModel(np.zeros((2, 2)), (0.0, 1.0)), {"lowpass": {"cutoff_hz": 300.0, "order": 1}})
+
+    def never(_):
+        raise AssertionError("a lag longer than two samples is not compared")
+
+    assert not is_timing(never, st, 0.1, 0.1, 0.0, 2e-4)  # group delay 0.53 ms > 0.2 ms
+    fast = FitState(st.model, {"lowpass": {"cutoff_hz": 2e3, "order": 1}})  # 80 us
+    assert is_timing(lambda s: 0.105, fast, 0.1, 0.1, 0.0, 2e-4)  # 5 % better than its delay
+    assert not is_timing(lambda s: 0.2, fast, 0.1, 0.1, 0.0, 2e-4)  # half its delay's error
+    assert not is_timing(lambda s: 0.105, fast, 0.1, 0.1, 0.0, 2e-5)  # the delay bar below its lag

@@ -30,7 +30,7 @@ from typing import Any, Optional, Sequence, Union
 import numpy as np
 
 from preisach.chain import Chain, load, sample_period
-from preisach.diagnose import lag, rest
+from preisach.diagnose import lag, rest, sessions
 from preisach.diagnose.crossfit import consistent, holdout_delay
 from preisach.diagnose.effects import CANDIDATES, FitState, Record, export_state, rate_branch, rmse
 from preisach.diagnose.initial import concentrated, estimate, fitted_part, predict_from
@@ -441,7 +441,7 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
                 why = "trivial parameters"
             elif ends_at_bound(c, st.effects[c], fitter.ranges):
                 why = "at its search bound: " + "; ".join(ends_at_bound(c, st.effects[c], fitter.ranges))
-            elif c == "lowpass" and not lag.beats_its_delay(score, st, sc, min_shrink, floor_acc)[0]:
+            elif c == "lowpass" and lag.is_timing(score, st, sc, min_shrink, floor_acc, min_delay):
                 why = TIMING  # (``preisach.diagnose.lag``)
             if why is None:
                 passing.append((not strong, sc, c))
@@ -456,8 +456,8 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
         for x in cur.effects:
             if x not in accepted and x not in base_effects and not trivial(x, cur.effects[x]) \
                     and not ends_at_bound(x, cur.effects[x], fitter.ranges) \
-                    and not (x == "lowpass" and not lag.beats_its_delay(score, cur, cur_score, min_shrink,
-                                                                         floor_acc)[0]):
+                    and not (x == "lowpass" and lag.is_timing(score, cur, cur_score, min_shrink, floor_acc,
+                                                               min_delay)):
                 # Fitted with it as a pair (a mode whose ringing needed a delay).
                 accepted.append(x)
                 tried[x] = dict(tried[best], score=tried.get(x, {}).get("score", tried[best]["score"]))
@@ -557,6 +557,28 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
         else:
             cross_fit["delay"]["refused"] = why
 
+    # An output offset that differs between records (sessions), under drift: per holdout,
+    # on evidence that separates it from history and creep (``preisach.diagnose.sessions``).
+    record_offsets: dict[str, float] = {}
+    if "drift" in candidates and cur_score > 1.2 * floor_acc:
+        es = holdout_errors(cur)
+        before = rmse(np.concatenate(es))
+        record_offsets, es = sessions.offsets(es, [h.u for h in hos], [h.name for h in hos], floor_acc)
+        sc = rmse(np.concatenate(es))
+        g = (before - sc) / before if before > 0 else 0.0
+        say(f"an offset per holdout (sessions): holdout RMSE {sc:.4g} (without: {before:.4g}) on "
+            f"{', '.join(record_offsets) or 'no holdout'}")
+        if record_offsets and g >= min_shrink and before - sc >= 0.5 * floor_acc and sc < hyst_alone:
+            if "drift" not in accepted:
+                zero = {"gain_per_s": 0.0, "offset": 0.0, "offset_per_s": 0.0}
+                tried["drift"] = {"state": FitState(cur.model, dict(cur.effects, drift=zero), cur.train_rmse),
+                                  "rmse_after": sc, "rmse_current": before, "score": g, "round": len(accepted) + 1,
+                                  "fitted_on": "each holdout, after its input swept the range (cross-fitted halves)"}
+                accepted.append("drift")
+            cur_score = sc
+        else:
+            record_offsets = {}
+
     # The hysteresis memory at each holdout's start (history nobody recorded), estimated
     # on the part before its input swept the range, the chain fixed.
     if "initial_state" in candidates and cur_score > 1.2 * floor_acc:
@@ -609,6 +631,8 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
             # after it was accepted); a refused one's those of its own candidate fit.
             src = final if c in accepted and c in final.effects else export_state(d["state"])
             params = {k: v for k, v in src.effects[c].items() if not k.startswith("_")}
+            if c == "drift" and record_offsets:
+                params["record_offsets"] = dict(record_offsets)  # by holdout: its session's offset
             if c in accepted and rests and c in ("vibration", "lowpass"):
                 # The step from rest at each record's start that its transient explains.
                 params["rest_input"] = {n: v["rest_input"] for n, v in rests.items()}
