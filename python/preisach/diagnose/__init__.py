@@ -125,12 +125,15 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
         fitter, fine, stride, sstride = steps.make_fitters(tr, n_h, fit_rate_hz, search_rate_hz, trials)
         run = steps.Run(tr, hos, n_h, tuple(candidates), min_shrink, trials, say, base, fitter, fine, stride,
                         sstride, search_rate_hz)
+        steps.mark_rest(run)
     found, hyst_alone, nh2 = steps.reference(run)
     floors, where, sig = steps.where(run, found, hyst_alone, nh2)
     steps.search(run, found, floors)
     steps.refine(run, found, floors)
     steps.holdout_effects(run, found, floors)
+    steps.session_offsets(run, found, floors)
     steps.initial_state(run, found, floors)
+    where = steps.rest_where(run, found, where)
     report = build_report(run, found, floors, where, sig, time.perf_counter() - t_start)
     say(f"done in {report.seconds:.1f} s: dominant effect {report.dominant_effect}")
     return report

@@ -44,6 +44,12 @@ def effect_entry(run: Run, found: Found, fl: Floors, c: str, cal: FitState, fina
         # it was accepted); a refused one's those of its own candidate fit.
         src = final if detected and c in final.effects else export_state(d["state"])
         params = {k: v for k, v in src.effects[c].items() if not k.startswith("_")}
+        if c == "drift" and found.record_offsets:
+            params["record_offsets"] = dict(found.record_offsets)  # by holdout: its session's offset
+        if detected and found.rests and c in ("vibration", "lowpass"):
+            # The step from rest at each record's start that its transient explains.
+            params["rest_input"] = {n: v["rest_input"] for n, v in found.rests.items()}
+            params["rest_step"] = {n: v["rest_step"] for n, v in found.rests.items()}
     before = run.base.holdout_rmse
     return {
         "name": c, "detected": detected, "score": float(d["score"]),
@@ -95,6 +101,7 @@ def build_report(run: Run, found: Found, fl: Floors, where: list[dict[str, Any]]
         effects=[effect_entry(run, found, fl, c, cal, final, sig) for c in order],
         augmented={"effects": list(aug.effects) if base.kept is None else list(final.effects),
                    "holdout_rmse": found.score,
+                   "rest_input": {n: v["rest_input"] for n, v in found.rests.items()},
                    "shrink": float(1 - found.score / before) if before > 0 else 0.0, "timing_s": float(timing)},
         seconds=seconds,
         search_ranges={n: {k: [b.lo, b.hi] for k, b in r.items()} for n, r in run.fitter.ranges.items()},

@@ -39,6 +39,7 @@ from preisach.diagnose.effects import (
     rmse,
 )
 from preisach.diagnose.ranges import CREEP_AMP_MAX, CREEP_TAU_MIN, Ranges, delay_grid, search_ranges
+from preisach.diagnose.rest import start_mode, transient
 from preisach.model import PreisachModel
 
 Effects = dict[str, dict[str, Any]]
@@ -203,6 +204,9 @@ class Fitter:
         self.slow: Optional[Fitter] = None
         #: Threads for independent trials (the core releases the GIL; none by default).
         self.trials = trials if trials is not None else Trials(1)
+        #: The record starts with a step from an unknown rest level: its transient is one
+        #: more linear coefficient of every fit (``preisach.diagnose.rest``).
+        self.rest = False
 
     def Jmany(self, effs: Sequence[Effects]) -> list[float]:
         """``J`` of several chains (the ones not memoized yet in parallel)."""
@@ -261,6 +265,10 @@ class Fitter:
         if "rate" in eff:
             rt = rate_branch({"gain_s": 1.0, "tau_s": eff["rate"]["tau_s"]}, self.rec.t, self._u)
             pre = np.ascontiguousarray(self._delayed(rt, eff)[None, :])
+        col = transient(eff, self.rec.t) if self.rest else None
+        if col is not None:  # (in z's units: the transient is part of the chain's output)
+            c = self.coarse(col)[None, :]
+            post = np.ascontiguousarray(c if post is None else np.vstack([post, c]))
         return {"z": np.ascontiguousarray(z), "chain": chain, "w": w, "pre": pre, "post": post, "q": q}
 
     def _linear(self, eff: Effects, extra: list[float]) -> Effects:
@@ -300,7 +308,9 @@ class Fitter:
         """The chain with masses >= 0 (exact NNLS projection) and its linear
         coefficients refitted with them."""
         if n_h is not None and n_h != self.n_h:
-            return Fitter(self.rec, n_h, self.u_range, self.stride, self.tol, self.trials, self.ranges).state(eff)
+            other = Fitter(self.rec, n_h, self.u_range, self.stride, self.tol, self.trials, self.ranges)
+            other.rest = self.rest
+            return other.state(eff)
         pb = self._problem(eff)
         res = self._solve(pb, nnls=True)
         model = PreisachModel._wrap(res["model"], "interpolated")
@@ -418,6 +428,8 @@ class Fitter:
                 eff["delay"] = {"delay_s": max(0.0, d0 - group_delay(p))}
         elif name == "vibration":
             eff = self.mode_band(eff, h)
+            if self.rest:
+                eff = start_mode(self.along, eff)
         elif name == "creep":
             tau, c = (self.slow or self).creep_init(eff)
             eff["creep"] = {"taus_s": [tau], "amplitudes": [c], "normalized": True}

@@ -23,7 +23,7 @@ import numpy as np
 
 from preisach.chain import Chain, load
 from preisach.diagnose import crossfit as cf
-from preisach.diagnose import kept
+from preisach.diagnose import kept, lag, rest, sessions
 from preisach.diagnose.crossfit import consistent, holdout_delay
 from preisach.diagnose.effects import CANDIDATES, FitState, Record, rmse
 from preisach.diagnose.initial import concentrated, estimate, fitted_part, predict_from
@@ -98,7 +98,7 @@ class Run:
         across records for each half of the holdouts, from the training record and the
         other halves (cross-fitting; see ``calibrate_slow``)."""
         if "drift" not in st.effects and "creep" not in st.effects:
-            return [st.predict(h) - h.y for h in self.hos]
+            return self.rest_removed(st, [st.predict(h) - h.y for h in self.hos])
         errs = [np.empty(h.y.size) for h in self.hos]
         outputs: dict[int, np.ndarray] = {}
         halves = self.halves
@@ -107,7 +107,12 @@ class Run:
                                  outputs)
             for e, h, hv in zip(errs, self.hos, halves):
                 e[hv[k]] = (cal.predict(h) - h.y)[hv[k]]
-        return errs
+        return self.rest_removed(st, errs)
+
+    def rest_removed(self, st: FitState, errs: Errors) -> Errors:
+        """A holdout that starts with a step from rest: the chain's transient removed
+        (``preisach.diagnose.rest``)."""
+        return [rest.remove(st, h, e)[0] for h, e in zip(self.hos, errs)]
 
     def parts_of(self, es: Errors) -> tuple[float, np.ndarray]:
         """RMSE overall and on each half of each holdout."""
@@ -155,6 +160,10 @@ class Found:
     tried: dict[str, dict[str, Any]] = field(default_factory=dict)
     accepted: list[str] = field(default_factory=list)
     cross_fit: dict[str, Any] = field(default_factory=dict)
+    #: Per holdout: its session's output offset (``drift``'s ``record_offsets``).
+    record_offsets: dict[str, float] = field(default_factory=dict)
+    #: Per record that starts with a step from rest: ``rest_input`` and ``rest_step``.
+    rests: dict[str, dict[str, float]] = field(default_factory=dict)
 
     def move(self, st: FitState, score: float, parts: np.ndarray) -> None:
         self.cur, self.score, self.parts = st, score, parts
@@ -376,6 +385,8 @@ def refusal(run: Run, found: Found, fl: Floors, c: str, res: Result, rnd: int) -
         return "trivial parameters"
     if ends_at_bound(c, st.effects[c], run.fitter.ranges):
         return "at its search bound: " + "; ".join(ends_at_bound(c, st.effects[c], run.fitter.ranges))
+    if c == "lowpass" and lag.is_timing(run.score, st, sc, run.min_shrink, fl.accept, fl.scale.min_delay):
+        return lag.TIMING
     return None
 
 
@@ -409,7 +420,9 @@ def accept(run: Run, found: Found, fl: Floors, results: dict[str, Result], rnd: 
     found.move(*results[best][:3])
     for x in found.cur.effects:
         if x not in found.accepted and x not in run.base.effects and not trivial(x, found.cur.effects[x], fl.scale) \
-                and not ends_at_bound(x, found.cur.effects[x], run.fitter.ranges):
+                and not ends_at_bound(x, found.cur.effects[x], run.fitter.ranges) \
+                and not (x == "lowpass" and lag.is_timing(run.score, found.cur, found.score, run.min_shrink,
+                                                          fl.accept, fl.scale.min_delay)):
             # Fitted with it as a pair (a mode whose ringing needed a delay).
             found.accepted.append(x)
             found.tried[x] = dict(found.tried[best],
@@ -476,7 +489,7 @@ def _polish_fine(run: Run, found: Found) -> None:
     left as searched when the chain has a mode: each trial of it is a solve behind the
     resonance at the finer average, and the mode's timing is what this refit is for; the
     slow effects are recalibrated across the records later."""
-    if run.fine is run.fitter or not (found.accepted or run.base.effects):
+    if not (found.accepted or run.base.effects):
         return
     names = [k for k in found.cur.effects if not (k == "creep" and "vibration" in found.cur.effects)]
     with run.trials.search():
@@ -670,3 +683,52 @@ def initial_state(run: Run, found: Found, fl: Floors) -> None:
     else:
         found.accepted.append("initial_state")
         found.score = sc
+
+
+def mark_rest(run: Run) -> None:
+    """A training record that starts with a step from rest: its transient is fitted with
+    the masses in every chain (``preisach.diagnose.rest``)."""
+    flag = rest.starts_with_step(run.base.residuals[run.tr.name], run.tr.dt)
+    for f in (run.fitter, run.fine, run.fitter.slow):
+        if f is not None:
+            f.rest = flag
+
+
+def session_offsets(run: Run, found: Found, fl: Floors) -> None:
+    """An output offset that differs between records (sessions), under drift: per
+    holdout, on evidence that separates it from history and creep
+    (``preisach.diagnose.sessions``)."""
+    if "drift" not in run.candidates or found.score <= 1.2 * fl.accept:
+        return
+    es = run.holdout_errors(found.cur)
+    before = rmse(np.concatenate(es))
+    offsets, es = sessions.offsets(es, [h.u for h in run.hos], [h.name for h in run.hos], fl.accept)
+    sc = rmse(np.concatenate(es))
+    run.say(f"an offset per holdout (sessions): holdout RMSE {sc:.4g} (without: {before:.4g}) on "
+            f"{', '.join(offsets) or 'no holdout'}")
+    if not (offsets and gain(before, sc) >= run.min_shrink and before - sc >= 0.5 * fl.accept
+            and sc < fl.hyst_alone):
+        return
+    if "drift" not in found.accepted:
+        cur = found.cur
+        zero = {"gain_per_s": 0.0, "offset": 0.0, "offset_per_s": 0.0}
+        found.tried["drift"] = {
+            "state": FitState(cur.model, dict(cur.effects, drift=zero), cur.train_rmse), "rmse_after": sc,
+            "rmse_current": before, "score": gain(before, sc), "round": len(found.accepted) + 1,
+            "fitted_on": "each holdout, after its input swept the range (cross-fitted halves)"}
+        found.accepted.append("drift")
+    found.record_offsets = offsets
+    found.score = sc
+
+
+def rest_where(run: Run, found: Found, where: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The rest input before each record that starts with a step from rest (the chain's
+    transient explains its start), and the residual localized again with that start
+    counted as after a step."""
+    u_lo, u_hi = float(np.min(run.tr.u)), float(np.max(run.tr.u))
+    found.rests = rest.rest_inputs(found.cur, run.recs, (u_lo, u_hi))
+    if not found.rests:
+        return where
+    levels = np.linspace(*run.base.model.u_range, run.n_h + 1)
+    return [localize(r.name, r.t, r.u, run.base.residuals[r.name], r.dt, levels,
+                     found.rests.get(r.name, {}).get("rest_input")) for r in run.given_recs]

@@ -36,13 +36,13 @@ def repeatability_floor(records: Sequence[tuple[NDArray[np.float64], NDArray[np.
     return float(np.median(out)) if out else None
 
 
-def segments(u: NDArray[np.float64], dt: float) -> dict[str, NDArray[np.bool_]]:
-    """Boolean masks: ``after_step`` (10 ms after a jump of the input), ``reversal``
-    (within 2 ms of a turning point), ``dwell`` (input constant, not just after a step)
-    and ``moving`` (the rest)."""
+def segments(u: NDArray[np.float64], dt: float, rest: Optional[float] = None) -> dict[str, NDArray[np.bool_]]:
+    """Boolean masks: ``after_step`` (10 ms after a jump of the input; from the rest input
+    ``rest`` to the first sample too), ``reversal`` (within 2 ms of a turning point),
+    ``dwell`` (input constant, not just after a step) and ``moving`` (the rest)."""
     n = u.size
     span = float(np.ptp(u)) or 1.0
-    du = np.diff(u, prepend=u[0])
+    du = np.diff(u, prepend=u[0] if rest is None else rest)
     step = np.abs(du) > 0.02 * span
     moving_thr = 1e-6 * span
     still = np.abs(du) <= moving_thr
@@ -107,11 +107,12 @@ def peaks(f: NDArray[np.float64], asd: NDArray[np.float64], k: int = 3) -> list[
 
 
 def localize(name: str, t: NDArray[np.float64], u: NDArray[np.float64], r: NDArray[np.float64],
-             dt: float, levels: NDArray[np.float64]) -> dict[str, Any]:
+             dt: float, levels: NDArray[np.float64], rest: Optional[float] = None) -> dict[str, Any]:
     """Where the residual of one record lies: time windows, segment kinds, input level
-    (Preisach cell row), frequency bands and input rate."""
+    (Preisach cell row), frequency bands and input rate. ``rest``: the input the record
+    stepped from at its first sample (the start is then after a step)."""
     tot = float(np.sqrt(np.mean(r ** 2)))
-    seg = segments(u, dt)
+    seg = segments(u, dt, rest)
     by_seg = {k: {"fraction_of_samples": float(m.mean()),
                   "rmse": float(np.sqrt(np.mean(r[m] ** 2))) if m.any() else None,
                   "share_of_error": float(np.sum(r[m] ** 2) / max(np.sum(r ** 2), 1e-300))}

@@ -1,0 +1,85 @@
+"""diagnose: a low-pass of a lag of two samples or less is an effect only where it beats
+a delay of its lag (the record's timing: a capture's latency and anti-aliasing filter
+act as a delay of a couple of samples). On the project's simulator (``preisach.sim.Stage``, random parameters) with a
+real low-pass (found) and a small delay (found as a delay), and on the independent rig
+with nothing but its capture lag (not a low-pass)."""
+import math
+
+import independent_stage as bv
+import numpy as np
+import pytest
+
+from preisach.diagnose import diagnose
+from preisach.diagnose.lag import delay_equivalent
+from preisach.diagnose.search import group_delay
+from preisach.sim import Stage, hysteresis_block
+
+
+def test_the_delay_equivalent_keeps_the_lag():
+    eff = {"lowpass": {"cutoff_hz": 800.0, "order": 2}, "delay": {"delay_s": 1e-4}, "drift": {"gain_per_s": 0.01}}
+    e = delay_equivalent(eff)
+    assert "lowpass" not in e and e["drift"] == eff["drift"]
+    assert e["delay"]["delay_s"] == pytest.approx(1e-4 + math.sqrt(2) / (2 * math.pi * 800.0))
+    assert delay_equivalent({"lowpass": {"cutoff_hz": 500.0, "order": 1}})["delay"]["delay_s"] == pytest.approx(
+        group_delay({"cutoff_hz": 500.0, "order": 1}))
+
+
+def _records(seed, blocks, fs=20e3):
+    """The project's simulator: a random hysteresis then ``blocks``; a training record and
+    two holdouts (triangle, steps) from rest at their first input, white noise."""
+    rng = np.random.default_rng(seed)
+    stage = Stage([hysteresis_block(bv.true_hysteresis(rng))] + blocks, sample_rate_hz=fs)
+    recs, t0 = [], 0.0
+    for kind in ("train", "triangle", "steps"):
+        u = bv.waveform(kind, fs, 1.5, rng)
+        t = t0 + np.arange(u.size) / fs
+        recs.append({"t": t, "u": u, "y": stage.simulate(t, u) + 0.003 * rng.standard_normal(u.size)})
+        t0 = float(t[-1]) + 1.0
+    return recs, rng
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_a_real_lowpass_is_found(seed):
+    rng = np.random.default_rng(100 + seed)
+    lp = {"type": "lowpass", "cutoff_hz": float(rng.uniform(300.0, 1000.0)), "order": int(rng.integers(1, 3))}
+    recs, _ = _records(seed, [lp])
+    rep = diagnose(recs[0], recs[1:], progress=False)
+    assert rep.dominant_effect == "lowpass", [(e["name"], e["refused"]) for e in rep.effects]
+
+
+def test_a_small_delay_is_found_as_a_delay():
+    """Four samples at 20 kHz: fitted as a delay within 10 %, not as a low-pass."""
+    fs = 20e3
+    d = 4 / fs
+    recs, _ = _records(5, [{"type": "delay", "delay_s": d}], fs)
+    rep = diagnose(recs[0], recs[1:], progress=False)
+    found = {e["name"]: e for e in rep.effects if e["detected"]}
+    assert rep.dominant_effect == "delay" and "lowpass" not in found, [(e["name"], e["refused"]) for e in rep.effects]
+    assert abs(found["delay"]["params"]["delay_s"] / d - 1) < 0.10
+
+
+def test_the_rigs_capture_lag_is_not_a_lowpass():
+    import rig
+
+    case = rig.make_case("none", 1000)
+    tr, hos = rig.records(case)
+    rep = diagnose(tr, hos, progress=False)
+    lp = next(e for e in rep.effects if e["name"] == "lowpass")
+    assert not lp["detected"], lp
+
+
+def test_only_a_lag_of_two_samples_or_less_is_compared_with_its_delay():
+    from preisach import PreisachModel
+    from preisach.diagnose.effects import FitState
+    from preisach.diagnose.lag import is_timing
+
+    st = FitState(PreisachModel(np.zeros((2, 2)), (0.0, 1.0)), {"lowpass": {"cutoff_hz": 300.0, "order": 1}})
+
+    def never(_):
+        raise AssertionError("a lag longer than two samples is not compared")
+
+    assert not is_timing(never, st, 0.1, 0.1, 0.0, 2e-4)  # group delay 0.53 ms > 0.2 ms
+    fast = FitState(st.model, {"lowpass": {"cutoff_hz": 2e3, "order": 1}})  # 80 us
+    assert is_timing(lambda s: 0.105, fast, 0.1, 0.1, 0.0, 2e-4)  # 5 % better than its delay
+    assert not is_timing(lambda s: 0.2, fast, 0.1, 0.1, 0.0, 2e-4)  # half its delay's error
+    assert not is_timing(lambda s: 0.105, fast, 0.1, 0.1, 0.0, 2e-5)  # the delay bar below its lag
