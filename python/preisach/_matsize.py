@@ -43,7 +43,6 @@ class _Source:
     def __init__(self, f: BinaryIO, compressed: int = -1) -> None:
         self.f, self.left = f, compressed
         self.z = zlib.decompressobj() if compressed >= 0 else None
-        self.buf = b""
 
     def _chunk(self, want: int) -> bytes:
         if self.z is None:
@@ -63,8 +62,8 @@ class _Source:
                 return out
 
     def read(self, n: int) -> bytes:
-        out = [self.buf[:n]]
-        got, self.buf = len(out[0]), self.buf[n:]
+        """Exactly ``n`` bytes (each chunk is at most what is still wanted)."""
+        out, got = [], 0
         while got < n:
             piece = self._chunk(n - got)
             if not piece:
@@ -74,7 +73,7 @@ class _Source:
         return b"".join(out)
 
     def skip(self, n: int) -> None:
-        if self.z is None and not self.buf:
+        if self.z is None:
             self.f.seek(n, 1)  # within the file: the caller checked the element's room
             return
         while n > 0:
