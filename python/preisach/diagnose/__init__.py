@@ -23,7 +23,6 @@ import os
 import sys
 import time
 import warnings
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Optional, Sequence, Union
 
@@ -178,6 +177,9 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
     try:
         return _diagnose(train, holdouts, n_h, baseline, candidates, min_shrink, fit_rate_hz, progress,
                          search_rate_hz, trials)
+    except KeyboardInterrupt:
+        trials.cancel()  # Ctrl-C: nothing new starts; the solves in the core end on their own
+        raise
     finally:
         trials.close()
 
@@ -381,7 +383,7 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
         # ones first, so the pool stays busy.
         todo.sort(key=lambda c: SLOW_FIRST.index(c) if c in SLOW_FIRST else len(SLOW_FIRST))
         results: dict[str, tuple[FitState, float, np.ndarray, float]] = {}
-        with warnings.catch_warnings(), ThreadPoolExecutor(max_workers=min(trials.workers, len(todo))) as ex:
+        with warnings.catch_warnings(), trials.tasks(min(trials.workers, len(todo))) as ex:
             warnings.simplefilter("ignore", PreisachWarning)
             for c, st, sc, parts, jc, el in ex.map(one, todo):
                 results[c] = (st, sc, parts, jc)
@@ -471,7 +473,7 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
         sc, parts = score_parts(st)
         return st, sc, parts, time.perf_counter() - t0
 
-    with ThreadPoolExecutor(max_workers=1) as ex:
+    with trials.tasks(1) as ex:
         fut = ex.submit(finer, cur) if disc else None
         pre_score, pre_parts = cur_score, cur_parts
         if fine is not fitter and (accepted or base_effects):
