@@ -7,10 +7,13 @@ ended, crashes and hangs.
     python benches/fuzz_campaign.py --cases 2000    # shorter
     python benches/fuzz_campaign.py --cases 2000 --rust-cases 20000
     python benches/fuzz_campaign.py --minutes 55 --no-rust   # a time budget, spread evenly
+    python benches/fuzz_campaign.py --no-python --rust-minutes 50 --rust-cases 100000
 
 With ``--minutes`` each hypothesis test runs on its own share of the time budget, in
 batches with fresh seeds, until its share is spent; the table then counts the examples
 hypothesis reports having run (``--hypothesis-show-statistics``) as well as the calls.
+With ``--rust-minutes`` the Rust properties run one after another, each on its share of
+the budget in batches of at most 10^4 cases (a new seed each), up to ``--rust-cases``.
 
 A crash (the process dies) or a hang (one call over tests/fuzzing.py's HANG_S; the
 watchdog ends the process) makes that file's run fail and is counted. Every Python call
@@ -141,19 +144,53 @@ def run_rust(cases: int) -> tuple[str, bool, float]:
     return p.stdout + p.stderr, p.returncode == 0, time.perf_counter() - t0
 
 
+def run_rust_timed(minutes: float, most: int, batch: int) -> tuple[dict[str, int], list[str], float]:
+    """Each property on an equal share of ``minutes`` (what the fast ones leave goes to the
+    others): batches of ``batch`` cases (proptest draws a new seed per run) until the
+    share is spent or ``most`` cases ran. Returns the cases per property that passed."""
+    t0 = time.perf_counter()
+    end = t0 + 60.0 * minutes
+    cmd = ["cargo", "test", "--profile", "fastdev", "-p", "preisach-core", "--test", "fuzz", "--"]
+    listed = subprocess.run(cmd + ["--list"], cwd=ROOT, capture_output=True, text=True).stdout
+    props = [line.split(":")[0] for line in listed.splitlines() if line.endswith(": test")]
+    plain = set(re.findall(r"fn (\w+)\(\)", (ROOT / "crates/preisach-core/tests/fuzz.rs").read_text()))
+    cases: dict[str, int] = {}
+    failures: list[str] = []
+    for i, prop in enumerate(props):
+        until = time.perf_counter() + max(0.0, end - time.perf_counter()) / (len(props) - i)
+        cases[prop] = 0
+        while cases[prop] < most:
+            n = min(batch, most - cases[prop])
+            p = subprocess.run(cmd + ["--exact", prop], cwd=ROOT, env=dict(os.environ, PROPTEST_CASES=str(n)),
+                               capture_output=True, text=True)
+            if p.returncode != 0:
+                failures.append(f"{prop}: FAILED (exit {p.returncode})\n{(p.stdout + p.stderr)[-4000:]}")
+                break
+            cases[prop] += n
+            print(f"  {prop}: {cases[prop]} cases ({time.perf_counter() - t0:.0f} s)", flush=True)
+            if prop in plain or time.perf_counter() > until:  # a regression test is one case
+                break
+    return cases, failures, time.perf_counter() - t0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cases", type=int, default=100_000, help="hypothesis examples per Python fuzz test")
     ap.add_argument("--rust-cases", type=int, default=None, help="proptest cases per Rust property (default: --cases)")
     ap.add_argument("--minutes", type=float, default=None,
                     help="instead of --cases: a wall-time budget for the Python fuzz tests, spread evenly")
+    ap.add_argument("--rust-minutes", type=float, default=None,
+                    help="a wall-time budget for the Rust properties, run one at a time in batches "
+                         "(up to --rust-cases each)")
     ap.add_argument("--workers", type=int, default=2, help="pytest processes at once")
     ap.add_argument("--no-rust", action="store_true", help="skip the Rust properties")
     ap.add_argument("--no-python", action="store_true", help="skip the Python fuzz tests")
     a = ap.parse_args()
     print(describe())
     ok = a.no_python or python_table(a.cases, a.workers, a.minutes)
-    if not a.no_rust:
+    if not a.no_rust and a.rust_minutes is not None:
+        ok = rust_timed_table(a.rust_minutes, a.rust_cases or a.cases) and ok
+    elif not a.no_rust:
         ok = rust_table(a.rust_cases or a.cases) and ok
     return 0 if ok else 1
 
@@ -198,6 +235,22 @@ def rust_table(n: int) -> bool:
     if not passed:
         print(out[-4000:])
     return passed
+
+
+def rust_timed_table(minutes: float, most: int) -> bool:
+    cases, failures, secs = run_rust_timed(minutes, most, batch=max(1, min(most, 10_000)))
+    src = (ROOT / "crates/preisach-core/tests/fuzz.rs").read_text()
+    plain = set(re.findall(r"fn (\w+)\(\)", src))  # regression tests: one case each
+    print(f"\nRust (proptest, crates/preisach-core/tests/fuzz.rs): {minutes:g} minutes, up to {most} cases "
+          f"per property, {'all passed' if not failures else 'FAILED'}, {secs:.0f} s\n")
+    print("| property | cases | result |")
+    print("|---|---:|---|")
+    for prop, n in cases.items():
+        failed = any(f.startswith(prop + ":") for f in failures)
+        print(f"| `{prop}` | {1 if prop in plain else n} | {'FAILED' if failed else 'ok'} |")
+    for f in failures:
+        print(f)
+    return not failures
 
 
 if __name__ == "__main__":
