@@ -413,3 +413,25 @@ def test_the_size_walk_passes_files_scipy_writes_and_counts_their_nested_values(
         assert err.value.variable == "v"
 
     check()
+
+
+def test_a_complex_flag_without_its_imaginary_part_is_refused_not_a_crash(tmp_path):
+    """Found by the fuzz campaign: SciPy reads the next variable's tag as the missing
+    imaginary part and crashes (SIGSEGV); the walk refuses the file first."""
+    import struct
+
+    def el(kind: int, data: bytes) -> bytes:
+        return struct.pack("<II", kind, len(data)) + data + b"\0" * (-len(data) % 8)
+
+    def double(name: bytes, values: np.ndarray, flags: int) -> bytes:
+        body = (el(6, struct.pack("<II", flags | 6, 0)) + el(5, struct.pack("<ii", 1, values.size)) + el(1, name)
+                + el(9, values.astype("<f8").tobytes()))
+        return struct.pack("<II", 14, len(body)) + body
+
+    head = b"MATLAB 5.0 MAT-file".ljust(116, b" ") + b"\0" * 8 + struct.pack("<HH", 0x0100, 0x4D49)
+    p = tmp_path / "complex.mat"
+    p.write_bytes(head + double(b"t", T[:30], 0x800) + double(b"u_dac", U[:30], 0))
+    with pytest.raises(ValueError, match=r"complex\.mat: variable t: "):
+        list_channels(p)
+    p.write_bytes(head + double(b"t", T[:30], 0) + double(b"u_dac", U[:30], 0))
+    assert [c.name for c in list_channels(p)] == ["t", "u_dac"]  # the same file without the flag reads

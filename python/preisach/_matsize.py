@@ -17,6 +17,8 @@ import zlib
 from typing import BinaryIO, Optional
 
 MI_INT8, MI_INT32, MI_MATRIX, MI_COMPRESSED = 1, 5, 14, 15
+#: The element types that hold numbers or characters (miINT8 .. miUINT64, miUTF8/16/32).
+NUMERIC = frozenset((1, 2, 3, 4, 5, 6, 7, 9, 12, 13, 16, 17, 18))
 CELL, STRUCT, OBJECT, SPARSE, FUNCTION, OPAQUE = 1, 2, 3, 5, 16, 17
 
 #: What one array costs besides its values (the Python objects made for it), in values.
@@ -124,7 +126,8 @@ class _Walk:
         if room == 0:
             return where, 0
         flags, used = self.data(room, 64)
-        cls = struct.unpack(self.e + "I", flags[:4])[0] & 0xFF if len(flags) >= 4 else 0
+        word = struct.unpack(self.e + "I", flags[:4])[0] if len(flags) >= 4 else 0
+        cls, complex_ = word & 0xFF, bool(word & 0x800)
         if cls in (FUNCTION, OPAQUE):
             return where, used + self.rest(room - used, where)
         raw, k = self.data(room - used, 4096)
@@ -150,9 +153,28 @@ class _Walk:
                 used += self.sub(room - used, f"{where}{{{i + 1}}}")
         elif cls in (STRUCT, OBJECT):
             used += self.fields(room - used, where, count, cls == OBJECT)
-        else:  # numeric, char, logical, sparse: data elements
-            used += self.rest(room - used, where, 8 * max(count, 1) if cls != SPARSE else None)
+        else:  # numeric, char, logical, sparse: its data elements, each of a numeric type
+            parts = (3 if cls == SPARSE else 1) + complex_
+            used += self.numbers(room - used, where, parts, None if cls == SPARSE else 8 * max(count, 1))
         return where, used
+
+    def numbers(self, room: int, where: str, parts: int, most: Optional[int]) -> int:
+        """The ``parts`` data elements of an array (real, imaginary; a sparse array's
+        indices first), each of a numeric type: SciPy crashes reading an element of
+        another type (an array's tag) as numbers."""
+        used = 0
+        for _ in range(parts):
+            kind, n, small, size = self.tag(room - used)
+            if kind not in NUMERIC:
+                raise _Refused(f"{where}: element of type {kind} where its numbers belong")
+            if most is not None and n > most:
+                raise _Refused(f"{where} declares {n} bytes of data for {most // 8} values")
+            if most is None:
+                self.spend(where, n // 8, f"declares {n} bytes of data")
+            if small is None:
+                self.src.skip(size - 8)
+            used += size
+        return used
 
     def sub(self, room: int, where: str) -> int:
         """One nested miMATRIX element; the bytes it took."""
