@@ -64,6 +64,8 @@ def test_npz_records_are_read(tmp_path, record):
     ["nonsense"],
     ["invert", "m.json", "r.csv", "-o", "u.csv", "--method", "magic"],
     ["invert", "m.json", "r.csv", "-o", "u.csv", "--lookahead", "10"],
+    ["compare", "-1e3", "-1e3", "--n-h", "\n"],  # found by the fuzz campaign: a line break in an argument
+    ["identify", "x\ny.csv", "--n-h", "a\r\nb", "-o", "m.json"],
 ])
 def test_usage_errors_are_one_line_with_exit_code_2(argv, capsys):
     assert main(argv) == 2

@@ -1,7 +1,7 @@
 """Faults: a process killed (SIGKILL) while writing a model, a chain, a CSV or JSON leaves
 the old file or the new one, never a torn one; the write helper flushes the data to disk
 before the rename; Ctrl-C during ``preisach diagnose`` or ``preisach demo`` exits with
-one line, code 130, no traceback and no output files; inputs are never modified (a
+one line, code 130, no traceback and no output files, and starts no queued fit; inputs are never modified (a
 property over every function that takes arrays, with read-only inputs)."""
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ import subprocess
 import sys
 import tempfile
 import textwrap
+import threading
 import time
 from pathlib import Path
 
@@ -181,6 +182,55 @@ def test_ctrl_c_while_writing_removes_the_files_written(tmp_path, monkeypatch, c
     assert cli.main(argv) == 130
     assert capsys.readouterr().err.strip().splitlines()[-1] == "preisach: interrupted"
     assert not (out / "r.json").exists() and not (tmp_path / "aug.json").exists() and len(calls) == 2
+
+
+def test_ctrl_c_in_the_candidate_fits_starts_nothing_new(tmp_path, monkeypatch):
+    """Ctrl-C while candidate fits and their trials run in threads: the queued fits are
+    dropped and no solve starts after it; only those already in the core finish. Counted,
+    not timed: the rest of an uninterrupted candidate round is hundreds of solves."""
+    from preisach import _preisach
+    from preisach.diagnose import diagnose
+
+    module = sys.modules["preisach.diagnose"]  # (preisach.diagnose is also the function)
+    train, hold = _records(tmp_path)
+    real, main, lock = _preisach.Behind, threading.main_thread().ident, threading.Lock()
+    count = {"solves": 0, "at_interrupt": -1, "candidates": False}
+
+    class Counting:
+        """A fit session that counts its solves, and sends SIGINT to the main thread at
+        the 40th solve of the candidate round (a Ctrl-C)."""
+
+        def __init__(self, *args: object) -> None:
+            self.session = real(*args)
+
+        def solve(self, *args: object, **kw: object) -> object:
+            with lock:
+                count["solves"] += 1
+                if count["candidates"] and count["at_interrupt"] < 0 and count["solves"] >= count["start"] + 40:
+                    count["at_interrupt"] = count["solves"]
+                    signal.pthread_kill(main, signal.SIGINT)
+            return self.session.solve(*args, **kw)
+
+    real_say = module._say
+
+    def say(show: bool, msg: str) -> None:  # the candidate round follows the "where: ..." line
+        if "where:" in msg:
+            with lock:
+                if not count["candidates"]:
+                    count["candidates"], count["start"] = True, count["solves"]
+        real_say(show, msg)
+
+    monkeypatch.setattr(_preisach, "Behind", Counting)
+    monkeypatch.setattr(module, "_say", say)
+    with pytest.raises(KeyboardInterrupt):
+        diagnose(str(train), [str(hold)], n_h=10, workers=2, progress=False)
+    for t in threading.enumerate():  # the pools' threads end once their solve in the core ends
+        if t is not threading.current_thread() and t.name.startswith(("preisach-trial", "ThreadPoolExecutor")):
+            t.join(300)
+            assert not t.is_alive()
+    assert count["at_interrupt"] > 0, "the diagnosis ended before the interrupt"
+    # Started after the interrupt: at most the solves the other threads had begun.
+    assert count["solves"] - count["at_interrupt"] <= 4, count
 
 
 # --- inputs are never modified -------------------------------------------------------------

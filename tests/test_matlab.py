@@ -358,3 +358,80 @@ def test_export_without_scipy_is_one_clear_line_before_any_work(tmp_path):
     assert r.returncode == 1
     assert r.stderr.strip() == "preisach: error: MAT files need SciPy: pip install 'preisach[mat]'"
     assert not list(tmp_path.iterdir())
+
+
+# --- sizes checked before reading (preisach._matsize) ---------------------------------
+def _tree(draw, depth):
+    """A random MATLAB value: arrays of several classes, structs and cell arrays, nested."""
+    from hypothesis import strategies as st
+
+    kind = draw(st.sampled_from(["double", "uint8", "complex", "text", "struct", "cell"] if depth < 3
+                                else ["double", "uint8", "text"]))
+    if kind in ("double", "uint8", "complex"):
+        shape = draw(st.sampled_from([(0,), (1,), (7,), (3, 4), (2, 3, 2), (40, 1)]))
+        a = np.arange(int(np.prod(shape)), dtype=np.float64).reshape(shape)
+        return a.astype(np.uint8) if kind == "uint8" else (a + 1j * a if kind == "complex" else a)
+    if kind == "text":
+        return draw(st.sampled_from(["", "x", "Pådrag", "Model Root/Plant/y"]))
+    if kind == "struct":
+        return {f"f{i}": _tree(draw, depth + 1) for i in range(draw(st.integers(0, 3)))}
+    cell = np.empty((1, draw(st.integers(0, 3))), dtype=object)
+    for i in range(cell.shape[1]):
+        cell[0, i] = _tree(draw, depth + 1)
+    return cell
+
+
+def _values(x) -> int:
+    """Numeric and char values in a tree (the walk's count, without its per-array cost)."""
+    if isinstance(x, dict):
+        return sum(_values(v) for v in x.values())
+    if isinstance(x, np.ndarray) and x.dtype == object:
+        return sum(_values(v) for v in x.ravel())
+    return len(x) if isinstance(x, str) else int(np.asarray(x).size)
+
+
+def test_the_size_walk_passes_files_scipy_writes_and_counts_their_nested_values(tmp_path):
+    """scipy-written files (compressed or not, nested structs and cells) pass the walk and
+    load; a budget below their values refuses them, naming the file and the variable."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from preisach._matsize import PER_ARRAY, MatSizeError, check_v5
+
+    @settings(max_examples=40, deadline=None)
+    @given(data=st.data(), compress=st.booleans())
+    def check(data, compress):
+        tree = {"v": _tree(data.draw, 0), "u_dac": U}
+        p = tmp_path / "tree.mat"
+        sio.savemat(p, tree, do_compression=compress)
+        n = _values(tree["v"])
+        with open(p, "rb") as f:  # at most 40 arrays in the tree
+            check_v5(f, p.stat().st_size, max(n, U.size) + 40 * PER_ARRAY)
+        assert any(c.name == "u_dac" for c in list_channels(p))
+        with open(p, "rb") as f, pytest.raises(MatSizeError) as err:
+            check_v5(f, p.stat().st_size, n - 1)
+        assert err.value.variable == "v"
+
+    check()
+
+
+def test_a_complex_flag_without_its_imaginary_part_is_refused_not_a_crash(tmp_path):
+    """Found by the fuzz campaign: SciPy reads the next variable's tag as the missing
+    imaginary part and crashes (SIGSEGV); the walk refuses the file first."""
+    import struct
+
+    def el(kind: int, data: bytes) -> bytes:
+        return struct.pack("<II", kind, len(data)) + data + b"\0" * (-len(data) % 8)
+
+    def double(name: bytes, values: np.ndarray, flags: int) -> bytes:
+        body = (el(6, struct.pack("<II", flags | 6, 0)) + el(5, struct.pack("<ii", 1, values.size)) + el(1, name)
+                + el(9, values.astype("<f8").tobytes()))
+        return struct.pack("<II", 14, len(body)) + body
+
+    head = b"MATLAB 5.0 MAT-file".ljust(116, b" ") + b"\0" * 8 + struct.pack("<HH", 0x0100, 0x4D49)
+    p = tmp_path / "complex.mat"
+    p.write_bytes(head + double(b"t", T[:30], 0x800) + double(b"u_dac", U[:30], 0))
+    with pytest.raises(ValueError, match=r"complex\.mat: variable t: "):
+        list_channels(p)
+    p.write_bytes(head + double(b"t", T[:30], 0) + double(b"u_dac", U[:30], 0))
+    assert [c.name for c in list_channels(p)] == ["t", "u_dac"]  # the same file without the flag reads

@@ -439,16 +439,21 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         sys.stdout.flush()  # a closed pipe shows here, inside the handler, not at exit
         return code
     except UsageError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except BrokenPipeError:
         return _closed_pipe()
     except (ValueError, OSError) as exc:
-        print(f"preisach: error: {exc}", file=sys.stderr)
+        print(f"preisach: error: {_one_line(exc)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("preisach: interrupted", file=sys.stderr)
         return 130
+
+
+def _one_line(exc: BaseException) -> str:
+    """The message on one line: line breaks (from an argument or a file) shown escaped."""
+    return str(exc).replace("\r", "\\r").replace("\n", "\\n")
 
 
 def _existing_outputs(a: argparse.Namespace) -> set[str]:

@@ -40,12 +40,14 @@ from typing import Any, Mapping, Optional, Union
 import numpy as np
 from numpy.typing import NDArray
 
+from preisach._matsize import MatSizeError, check_v5
 from preisach.io import PathLike
 
 __all__ = ["Channel", "list_channels", "printable", "read_mat", "sample_rate", "select", "write_model_mat"]
 
-#: Most values one variable of a MAT file may declare (2^27 doubles: 1 GiB), checked
-#: from the file's headers before any data is read.
+#: Most values one variable of a MAT file may declare (2^27 doubles: 1 GiB), arrays
+#: nested in its structs and cell arrays included, checked from the file's headers before
+#: any data is read (a compressed element is inflated chunk by chunk for that).
 MAX_MAT_VALUES = 2**27
 
 #: The one-line hint when SciPy is missing.
@@ -108,7 +110,7 @@ def _loadmat(p: Path) -> dict[str, Any]:
         raise ValueError(f"{p}: MAT v7.3 (HDF5) files are not supported; save it in MATLAB with "
                          f"save('{p.name}', ..., '-v7') and import that")
     try:
-        _check_sizes(p, scipy.io.whosmat(str(p)))
+        _check_sizes(p, head)
         return dict(scipy.io.loadmat(str(p), squeeze_me=True, struct_as_record=False, chars_as_strings=True))
     except ValueError as exc:
         if str(exc).startswith(f"{p}: "):
@@ -120,9 +122,20 @@ def _loadmat(p: Path) -> dict[str, Any]:
         raise ValueError(f"{p}: not a readable MAT file ({type(exc).__name__}: {exc})") from None
 
 
-def _check_sizes(p: Path, variables: list[tuple[str, tuple[int, ...], str]]) -> None:
-    """Refuse a variable whose declared dimensions exceed :data:`MAX_MAT_VALUES`."""
-    for name, shape, _ in variables:
+def _check_sizes(p: Path, head: bytes) -> None:
+    """Refuse a variable that declares more than :data:`MAX_MAT_VALUES` values, nested
+    arrays and compressed elements included (MAT v5: :mod:`preisach._matsize`; MAT v4
+    has top-level matrices only, whose dimensions ``whosmat`` reads)."""
+    import scipy.io
+
+    if head[126:128] in (b"IM", b"MI"):
+        try:
+            with open(p, "rb") as f:
+                check_v5(f, p.stat().st_size, MAX_MAT_VALUES)
+        except MatSizeError as exc:
+            raise ValueError(f"{p}: variable {printable(exc.variable)}: {printable(exc.detail)}") from None
+        return
+    for name, shape, _ in scipy.io.whosmat(str(p)):
         n = int(np.prod([int(k) for k in shape], dtype=object))
         if n > MAX_MAT_VALUES:
             raise ValueError(f"{p}: variable {printable(name)} declares {'x'.join(map(str, shape))} = {n} values, "

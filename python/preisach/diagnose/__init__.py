@@ -98,6 +98,9 @@ def diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int = 40,
     try:
         return _diagnose(train, holdouts, n_h, baseline, candidates, min_shrink, fit_rate_hz, progress,
                          search_rate_hz, trials, refit_masses)
+    except KeyboardInterrupt:
+        trials.cancel()  # Ctrl-C: nothing new starts; the solves in the core end on their own
+        raise
     finally:
         trials.close()
 

@@ -157,7 +157,7 @@ def _mode_guess(r: NDArray[np.float64], dt: float, k: int = 3) -> list[float]:
     ok = (f > 300) & (f < 0.4 / dt)
     # Whiten by a smooth trend so a broadband low-frequency residual does not win.
     logp = np.log(psd[ok] + 1e-300)
-    kw = max(3, ok.sum() // 40)
+    kw = min(max(3, ok.sum() // 40), max(1, logp.size))  # a short record has few bins
     trend = np.convolve(logp, np.ones(kw) / kw, mode="same")
     ex = logp - trend
     out: list[float] = []

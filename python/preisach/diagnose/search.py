@@ -101,17 +101,22 @@ def _set(eff: Effects, name: str, key: str, v: float) -> Effects:
 _worker = threading.local()
 
 
+class Cancelled(Exception):
+    """A trial asked to start after the diagnosis was interrupted (see :meth:`Trials.cancel`)."""
+
+
 class Trials:
     """Threads for the independent trials of a search (its starting points, a grid), used
     only while a CPU would otherwise idle: while fewer searches run than there are
     workers. (Trials beside a busy CPU only add work: each thread's fit session
-    warm-starts from its own last solve.)"""
+    warm-starts from its own last solve.) After :meth:`cancel` (Ctrl-C) no trial starts."""
 
     def __init__(self, workers: int) -> None:
         self.workers = max(1, int(workers))
         self.pool = ThreadPoolExecutor(self.workers, thread_name_prefix="preisach-trial") if self.workers > 1 else None
         self._searches = 0
         self._lock = threading.Lock()
+        self._cancelled = threading.Event()
 
     @contextmanager
     def search(self) -> Iterator[None]:
@@ -142,9 +147,37 @@ class Trials:
         assert self.pool is not None
         return list(self.pool.map(run, items))
 
+    def check(self) -> None:
+        """Raises :class:`Cancelled` once :meth:`cancel` was called (before each solve)."""
+        if self._cancelled.is_set():
+            raise Cancelled("the diagnosis was interrupted")
+
+    def cancel(self) -> None:
+        """Start nothing new: queued trials are dropped, running searches stop at their
+        next solve (a solve already in the core runs to its end)."""
+        self._cancelled.set()
+        if self.pool is not None:
+            self.pool.shutdown(wait=False, cancel_futures=True)
+
+    @contextmanager
+    def tasks(self, workers: int) -> Iterator[ThreadPoolExecutor]:
+        """A thread pool for the diagnosis's own tasks (candidate fits, a refit). On Ctrl-C
+        the trials are cancelled and the pool is left at once, its queued tasks dropped."""
+        ex = ThreadPoolExecutor(max_workers=workers)
+        try:
+            yield ex
+        except KeyboardInterrupt:
+            self.cancel()
+            ex.shutdown(wait=False, cancel_futures=True)
+            raise
+        except BaseException:
+            ex.shutdown(cancel_futures=True)
+            raise
+        ex.shutdown()
+
     def close(self) -> None:
         if self.pool is not None:
-            self.pool.shutdown()
+            self.pool.shutdown(wait=not self._cancelled.is_set())
 
 
 def group_delay(p: dict[str, Any]) -> float:
@@ -246,6 +279,7 @@ class Fitter:
     def _solve(self, pb: dict[str, Any], nnls: bool = False) -> dict[str, Any]:
         """One solve on this thread's session (a session serves one thread at a time, and
         warm-starts from its previous solve: the neighbouring trial of the same search)."""
+        self.trials.check()
         sess = getattr(self._local, "session", None)
         if sess is None:
             sess = self._local.session = self._behind(self._u, self.n_h, self.u_range, self.stride)

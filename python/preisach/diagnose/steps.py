@@ -14,7 +14,6 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence, Union
@@ -350,7 +349,7 @@ def fit_round(run: Run, found: Found, fl: Floors, todo: list[str], rnd: int) -> 
 
     todo = sorted(todo, key=lambda c: SLOW_FIRST.index(c) if c in SLOW_FIRST else len(SLOW_FIRST))
     results: dict[str, Result] = {}
-    with warnings.catch_warnings(), ThreadPoolExecutor(max_workers=min(trials.workers, len(todo))) as ex:
+    with warnings.catch_warnings(), trials.tasks(min(trials.workers, len(todo))) as ex:
         warnings.simplefilter("ignore", PreisachWarning)
         for c, st, sc, parts, jc, el in ex.map(one, todo):
             results[c] = (st, sc, parts, jc)
@@ -506,7 +505,7 @@ def refine(run: Run, found: Found, fl: Floors) -> None:
     grid with the effects found) runs beside it on the chain before the refit, and is
     redone on the refitted chain only when it passes."""
     disc = "discretization" in run.candidates and fl.nh2 > run.n_h
-    with ThreadPoolExecutor(max_workers=1) as ex:
+    with run.trials.tasks(1) as ex:
         fut = ex.submit(_finer, run, fl, found.cur) if disc else None
         pre_score, pre_parts = found.score, found.parts
         _polish_fine(run, found)
@@ -572,7 +571,7 @@ def holdout_halves(run: Run, found: Found, fl: Floors) -> None:
                                     run.trials)
 
     passing = []
-    with warnings.catch_warnings(), ThreadPoolExecutor(max_workers=min(run.trials.workers, len(names))) as ex:
+    with warnings.catch_warnings(), run.trials.tasks(min(run.trials.workers, len(names))) as ex:
         warnings.simplefilter("ignore", PreisachWarning)
         for c, xf in ex.map(one, names):
             sc, parts = run.parts_of(xf["errors"])
