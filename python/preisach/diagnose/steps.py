@@ -553,6 +553,11 @@ def _halves_refusal(run: Run, found: Found, fl: Floors, c: str, xf: dict[str, An
     bounds = [b for f in xf["folds"] for b in ends_at_bound(c, f["_state"].effects[c], f["_ranges"])]
     if bounds:
         return "at its search bound: " + "; ".join(bounds)
+    if c == "lowpass":
+        # The record's timing, as in the search: a fold's chain against its delay equivalent.
+        st = xf["folds"][0]["_state"]
+        if lag.is_timing(run.score, st, run.score(st), run.min_shrink, fl.accept, fl.scale.min_delay):
+            return lag.TIMING
     return None
 
 
