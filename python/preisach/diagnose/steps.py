@@ -437,13 +437,19 @@ def eliminate(run: Run, found: Found, best: str, rnd: int) -> None:
     for x in [k for k in found.accepted if k != best]:
         if len(found.accepted) < 2 or x not in found.cur.effects:
             continue
-        st2 = run.fitter.state(run.fitter.without(found.cur.effects, x))
-        sc2, parts2 = run.score_parts(st2)
-        run.say(f"round {rnd + 1}: without {x}: holdout RMSE {sc2:.4g}")
-        if sc2 <= found.score * 1.02:
-            found.accepted.remove(x)
-            found.tried[x]["refused"] = f"made redundant by {best}"
-            found.move(st2, sc2, parts2)
+        _drop_if_as_good(run, found, x, run.fitter.state(run.fitter.without(found.cur.effects, x)), best,
+                         f"round {rnd + 1}: ")
+
+
+def _drop_if_as_good(run: Run, found: Found, x: str, st2: FitState, best: str, prefix: str = "") -> None:
+    """Effect ``x`` dropped, the chain moved to ``st2`` (the chain without it), when that
+    scores within 2 % of the chain with it: ``best`` made it redundant."""
+    sc2, parts2 = run.score_parts(st2)
+    run.say(f"{prefix}without {x}: holdout RMSE {sc2:.4g}")
+    if sc2 <= found.score * 1.02:
+        found.accepted.remove(x)
+        found.tried[x]["refused"] = f"made redundant by {best}"
+        found.move(st2, sc2, parts2)
 
 
 def search(run: Run, found: Found, fl: Floors) -> None:
@@ -615,14 +621,8 @@ def drop_redundant(run: Run, found: Found, best: str) -> None:
         if x not in found.cur.effects or (x == "delay" and any(k in found.cur.effects for k in ("vibration",
                                                                                               "lowpass"))):
             continue
-        st2 = FitState(found.cur.model, {k: v for k, v in found.cur.effects.items() if k != x},
-                       found.cur.train_rmse)
-        sc2, parts2 = run.score_parts(st2)
-        run.say(f"without {x}: holdout RMSE {sc2:.4g}")
-        if sc2 <= found.score * 1.02:
-            found.accepted.remove(x)
-            found.tried[x]["refused"] = f"made redundant by {best}"
-            found.move(st2, sc2, parts2)
+        _drop_if_as_good(run, found, x, FitState(found.cur.model, {k: v for k, v in found.cur.effects.items()
+                                                                   if k != x}, found.cur.train_rmse), best)
 
 
 def holdout_effects(run: Run, found: Found, fl: Floors) -> None:
