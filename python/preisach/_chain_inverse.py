@@ -125,7 +125,10 @@ class ChainInverter:
 
     def _clip(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
         out = np.clip(u, self._lo, self._hi)
-        self._clipped += int(np.count_nonzero(out != u))
+        hit = out != u
+        if self._first_clipped is None and hit.any():
+            self._first_clipped = int(np.argmax(hit))
+        self._clipped += int(np.count_nonzero(hit))
         return out
 
     @property
@@ -194,7 +197,7 @@ class ChainInverter:
         """Back to the start: filters at rest with the next reference, the hysteresis
         inverse at negative saturation, time 0."""
         self._stream.reset()
-        self._clipped = 0
+        self._clipped, self._first_clipped = 0, None
 
     @property
     def state(self) -> dict[str, Any]:
@@ -224,10 +227,8 @@ class ChainInverter:
         ``u[n]`` the input for ``r[n]``, clipped to :attr:`input_limits` (counted in
         :attr:`clipped`)."""
         u, sat = self._stream.invert(_as_signal("r", r))
-        out = np.clip(u, self._lo, self._hi)
-        self._clipped = int(np.count_nonzero(out != u))
-        self._first_clipped = int(np.argmax(out != u)) if self._clipped else None
-        return out, int(sat)
+        self._clipped, self._first_clipped = 0, None
+        return self._clip(u), int(sat)
 
     def __repr__(self) -> str:
         return (f"ChainInverter(method={self.method!r}, latency={self.latency}, "

@@ -311,8 +311,7 @@ def where(run: Run, found: Found, hyst_alone: float,
     ref, recs = found.cur, run.recs
     floor = float(np.median([noise_floor(r.y - ref.predict(r)) for r in recs]))
     floor_j = noise_floor(run.fitter.y - run.fitter.predict(ref)) ** 2
-    levels = np.linspace(*run.base.model.u_range, run.n_h + 1)
-    loc = [localize(r.name, r.t, r.u, run.base.residuals[r.name], r.dt, levels) for r in run.given_recs]
+    loc = _localized(run, {})
     sig = {}
     for r in recs:
         h = ref.predict(r)
@@ -733,6 +732,12 @@ def rest_where(run: Run, found: Found, where: list[dict[str, Any]]) -> list[dict
     found.rests = rest.rest_inputs(found.cur, run.recs, (u_lo, u_hi))
     if not found.rests:
         return where
+    return _localized(run, found.rests)
+
+
+def _localized(run: Run, rests: dict[str, dict[str, float]]) -> list[dict[str, Any]]:
+    """The baseline's residual localized on every record (``rests``: the rest input of
+    each record that starts with a step from rest)."""
     levels = np.linspace(*run.base.model.u_range, run.n_h + 1)
     return [localize(r.name, r.t, r.u, run.base.residuals[r.name], r.dt, levels,
-                     found.rests.get(r.name, {}).get("rest_input")) for r in run.given_recs]
+                     rests.get(r.name, {}).get("rest_input")) for r in run.given_recs]
