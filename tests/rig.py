@@ -161,7 +161,7 @@ class Rig:
 
     def record(self, u: np.ndarray, fs: float, t0: float = 0.0, *, rest: Optional[float] = None,
                history: Sequence[float] = (), channel: str = "clean", session_offset: float = 0.0,
-               rng: Optional[np.random.Generator] = None) -> dict[str, Any]:
+               session_gain: float = 1.0, rng: Optional[np.random.Generator] = None) -> dict[str, Any]:
         """Capture the response to DAC commands ``u`` (volts) sampled at ``fs``, the first
         at absolute time ``t0``. Before it the DAC rested at ``rest`` (default ``u[0]``)
         long enough for everything to settle, after visiting the DAC levels ``history``
@@ -209,13 +209,14 @@ class Rig:
         ys = y[::OVERSAMPLE]
         n = u.size
         t = t0 + np.arange(n) / fs
-        ys = ys * (1 + self.drift_gain_per_s * t) + self.drift_offset_per_s * t + session_offset
+        ys = session_gain * ys * (1 + self.drift_gain_per_s * t) + self.drift_offset_per_s * t + session_offset
         ys = ys + self.noise_std * rng.standard_normal(n) + self.wander_std * _wander(rng, t - t0)
         q = 2 * ADC_RANGE / (2 ** ADC_BITS - 1)
         ys = np.round((ys + ADC_RANGE) / q) * q - ADC_RANGE
         return {"t": t, "u": u.copy(), "y": ys,
                 "truth": {"rest": rest, "history": list(history), "channel": channel,
-                          "delay_s": self.delays[channel], "session_offset": session_offset}}
+                          "delay_s": self.delays[channel], "session_offset": session_offset,
+                          "session_gain": session_gain}}
 
 
 def _wander(rng: np.random.Generator, t: np.ndarray) -> np.ndarray:

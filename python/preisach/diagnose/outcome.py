@@ -46,6 +46,8 @@ def effect_entry(run: Run, found: Found, fl: Floors, c: str, cal: FitState, fina
         params = {k: v for k, v in src.effects[c].items() if not k.startswith("_")}
         if c == "drift" and found.record_offsets:
             params["record_offsets"] = dict(found.record_offsets)  # by holdout: its session's offset
+        if c == "drift" and found.record_gains:
+            params["record_gains"] = dict(found.record_gains)  # by holdout: its session's gain
         if detected and found.rests and c in ("vibration", "lowpass"):
             # The step from rest at each record's start that its transient explains.
             params["rest_input"] = {n: v["rest_input"] for n, v in found.rests.items()}
