@@ -9,7 +9,7 @@ __version__: str
 DEFAULT_DIAGONAL_FLOOR: float
 __all__ = [
     "__version__", "DEFAULT_DIAGONAL_FLOOR", "Model", "Stream", "fit", "fit_behind", "Behind", "regression_rows",
-    "invert", "saturation", "InverseStream", "Chain", "run_loop", "run_loop_chain", "ChainInverseStream",
+    "nnls", "invert", "saturation", "InverseStream", "Chain", "run_loop", "run_loop_chain", "ChainInverseStream",
     "sample_period",
 ]
 
@@ -80,6 +80,7 @@ class Behind:
         nnls: bool = False,
     ) -> dict[str, Any]: ...
 
+def nnls(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]: ...
 def regression_rows(
     u: NDArray[np.float64],
     y: NDArray[np.float64],

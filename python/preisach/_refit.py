@@ -25,6 +25,7 @@ from typing import Any, Optional, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from preisach import _preisach
 from preisach.chain import Chain, sample_period
 from preisach.model import DIAGONAL_FLOOR, PreisachModel
 
@@ -142,30 +143,6 @@ def creep_bank(longest_s: float, tau_min_s: float = CREEP_TAU_MIN_S,
                                   max(2, int(np.ceil(decades * per_decade)) + 1)), dtype=np.float64)
 
 
-def nnls(a: NDArray[np.float64], b: NDArray[np.float64], max_iter: int = 200) -> NDArray[np.float64]:
-    """``argmin |a x - b|`` over ``x >= 0`` (Lawson-Hanson active set; a few columns)."""
-    n = a.shape[1]
-    x = np.zeros(n)
-    free = np.zeros(n, dtype=bool)
-    for _ in range(max_iter):
-        w = a.T @ (b - a @ x)
-        if free.all() or w[~free].max(initial=0.0) <= 1e-12 * max(1.0, float(np.abs(w).max())):
-            break
-        free[int(np.argmax(np.where(free, -np.inf, w)))] = True
-        while True:
-            z = np.zeros(n)
-            z[free] = np.linalg.lstsq(a[:, free], b, rcond=None)[0]
-            if (z[free] > 0).all():
-                x = z
-                break
-            neg = free & (z <= 0)
-            alpha = float(np.min(x[neg] / (x[neg] - z[neg])))
-            x = x + alpha * (z - x)
-            free &= x > 1e-15
-            x[~free] = 0.0
-    return x
-
-
 def refit_creep(chain: Chain, records: Sequence[Record], taus_s: Optional[Sequence[float]] = None) -> Chain:
     """``chain`` with its creep replaced by a bank of normalized elements (``y = x +
     sum c_k (LP_k[x] - x)``) right after its hysteresis (and rate), fitted on
@@ -187,13 +164,17 @@ def refit_creep(chain: Chain, records: Sequence[Record], taus_s: Optional[Sequen
         z = hysteresis_output(post[k:], y, 1.0 / sample_period(t))
         # Each record's mean is left out and a gain (either sign) is fitted with the
         # elements: offset and gain are the masses' business. Records weigh alike.
-        col = np.column_stack([x, -x] + [_element(tau).predict(t, x) - x for tau in taus])
+        col = np.column_stack([x] + [_element(tau).predict(t, x) - x for tau in taus])
         w = 1.0 / np.sqrt(t.size)
         cols.append(w * (col - col.mean(axis=0)))
         rhs.append(w * (z - x - np.mean(z - x)))
-    sol = nnls(np.concatenate(cols), np.concatenate(rhs))
-    c = sol[2:] / (1.0 + sol[0] - sol[1])
-    keep = c > 0
+    a, b = np.concatenate(cols), np.concatenate(rhs)
+    # The gain is free: projected out, the elements' amplitudes by NNLS, then the gain.
+    g = a[:, 0] / max(float(np.linalg.norm(a[:, 0])), 1e-300)
+    amps = _preisach.nnls(np.ascontiguousarray(a[:, 1:] - np.outer(g, g @ a[:, 1:])), b - g * (g @ b))
+    gain = float(a[:, 0] @ (b - a[:, 1:] @ amps)) / max(float(a[:, 0] @ a[:, 0]), 1e-300)
+    c = amps / (1.0 + gain)
+    keep = c > 1e-9 * max(float(np.max(c)), 0.0)
     creep = [{"type": "creep", "taus_s": [float(v) for v in taus[keep]],
               "amplitudes": [float(v) for v in c[keep]], "normalized": True}] if keep.any() else []
     return Chain.from_blocks(pre + upto[len(pre):] + creep + post[k:], chain.sample_rate_hz, chain.initial_input)

@@ -9,6 +9,7 @@ use std::sync::Mutex;
 use numpy::{PyReadonlyArray2, PyUntypedArrayMethods};
 use preisach_core::blocks::{Discretization, Filter};
 use preisach_core::identify::filtered::{fit_behind as core_fit_behind, Behind as CoreBehind, BehindOptions, Terms};
+use preisach_core::identify::nnls::nnls as core_nnls;
 use preisach_core::identify::{build_rows, fit as core_fit, FitOptions, Solver, DEFAULT_DIAGONAL_FLOOR};
 use preisach_core::Grid;
 use pyo3::exceptions::PyValueError;
@@ -158,6 +159,26 @@ fn fit_behind<'py>(
     })
 }
 
+/// `x >= 0` minimizing `|a x - b|` for a few dense columns (clarabel, then the support
+/// polished by least squares).
+#[pyfunction]
+fn nnls<'py>(
+    py: Python<'py>,
+    a: PyReadonlyArray2<'py, f64>,
+    b: PyReadonlyArray1<'py, f64>,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    guard(|| {
+        let b = slice("b", &b)?;
+        let (m, n) = (a.shape()[0], a.shape()[1]);
+        if m != b.len() {
+            return Err(PyValueError::new_err(format!("a: expected len(b) = {} rows, got {m}", b.len())));
+        }
+        let av: Vec<f64> = a.as_array().iter().copied().collect();
+        let x = py.detach(|| core_nnls(&av, n, b)).map_err(to_py)?;
+        Ok(x.into_pyarray(py))
+    })
+}
+
 /// A fit problem on one input (rows and preconditioner built once): fits targets
 /// behind linear blocks, for profiling effect parameters.
 #[pyclass(frozen, module = "preisach._preisach")]
@@ -271,6 +292,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Behind>()?;
     m.add_function(wrap_pyfunction!(fit, m)?)?;
     m.add_function(wrap_pyfunction!(fit_behind, m)?)?;
+    m.add_function(wrap_pyfunction!(nnls, m)?)?;
     m.add_function(wrap_pyfunction!(regression_rows, m)?)?;
     Ok(())
 }

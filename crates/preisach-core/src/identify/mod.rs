@@ -4,6 +4,7 @@
 
 pub mod active;
 pub mod filtered;
+pub mod nnls;
 mod order;
 pub mod qp;
 pub mod rows;
