@@ -713,7 +713,7 @@ CAL_RATE_HZ = 5e3
 
 
 def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
-                   outputs: Optional[dict[int, NDArray[np.float64]]] = None) -> FitState:
+                   outputs: Optional[dict[Any, Any]] = None) -> FitState:
     """The slow effects of a chain (drift, creep) recalibrated across records, the masses
     and the other effects fixed. One short training record cannot tell them apart: within
     a record both are slow trends, and the masses absorb part of either. Across records
@@ -732,8 +732,8 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
     adjustment to the holdouts). The least squares run on window averages of every
     column (about ``CAL_RATE_HZ``: the averaged equations hold exactly, and their
     solution is that of the full-rate ones up to the noise). ``outputs``: the records'
-    ``x`` by ``id(record)``, computed here when missing and stored (the folds of one
-    chain share them)."""
+    ``x`` by ``id(record)`` and their creep columns (``_creep_columns``), computed here
+    when missing and stored (the folds of one chain share them)."""
     # A creep of several elements (a given baseline chain's) stays as it is.
     creep = "creep" in st.effects and len(st.effects["creep"]["taus_s"]) == 1
     if "drift" not in st.effects and not creep:
@@ -777,11 +777,11 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
         fits: dict[float, tuple[NDArray[np.float64], float]] = {}
 
         def sse_at(lt: float) -> float:
-            tk = math.exp(lt)
-            resp = [_lp(xf, tk, rec.t) - xf for xf, (rec, _) in zip(full_x, data)]
-            col = averaged(resp)
+            cols = [_creep_columns(xf, rec, math.exp(lt), k, drift, outputs)
+                    for xf, (rec, _), (k, _) in zip(full_x, data, windows)]
+            col = np.concatenate([c[0][cut] for c, (_, cut) in zip(cols, windows)])
             # With a drift, its gain also scales the creep (the t k column).
-            tcol = [averaged([kf * tf for kf, tf in zip(resp, times)])] if drift else []
+            tcol = [np.concatenate([c[1][cut] for c, (_, cut) in zip(cols, windows)])] if drift else []
             coef, sse = solve([col] + tcol)
             ci = -2 if drift else -1
             if not 0.0 <= coef[ci] <= CREEP_AMP_MAX:
@@ -820,6 +820,22 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
         c = min(max(float(coef[-1]), 0.0), CREEP_AMP_MAX)
         eff["creep"] = {"taus_s": [float(tau)], "amplitudes": [c], "normalized": True}
     return FitState(st.model, eff, st.train_rmse)
+
+
+def _creep_columns(x: NDArray[np.float64], rec: Record, tau: float, k: int, drift: bool,
+                   cache: Optional[dict[Any, Any]]) -> tuple[NDArray[np.float64], Any]:
+    """The creep element's response ``LP_tau[x] - x`` on the whole of ``rec`` averaged
+    over windows of ``k`` samples, and (with a drift) the same times the record's time;
+    stored in ``cache`` by record and time constant (the folds of a chain's calibration
+    take the same columns on other parts of the records)."""
+    key = (id(rec), tau, k, drift)
+    if cache is not None and key in cache:
+        return cache[key]  # type: ignore[no-any-return]
+    r = _lp(x, tau, rec.t) - x
+    out = (window_mean(r, k), window_mean(r * rec.t, k) if drift else None)
+    if cache is not None:
+        cache[key] = out
+    return out
 
 
 def _lp(x: NDArray[np.float64], tau: float, t: NDArray[np.float64]) -> NDArray[np.float64]:
