@@ -63,6 +63,8 @@ SCALARS: dict[str, list[tuple[str, float]]] = {
     "rate": [("tau_s", 0.2)],
 }
 DYNAMIC = ("vibration", "lowpass")
+#: Rate-branch columns a fitter keeps (``Fitter._rate_column``; each is one averaged record).
+RATE_COLUMNS_KEPT = 128
 #: Effects whose parameters trade off against each other's (polished together): a delay
 #: and the dynamics share the lag; a low-pass and creep both shape the step response.
 #: (Creep and drift trade off too, but one record cannot tell them apart: polishing one
@@ -222,6 +224,7 @@ class Fitter:
         self._local = threading.local()
         self._lock = threading.Lock()
         self._memo: dict[tuple[Any, ...], tuple[float, list[float]]] = {}
+        self._rate_cols: dict[tuple[float, float], NDArray[np.float64]] = {}
         self.evaluations = 0
         self._u = np.ascontiguousarray(rec.u, dtype=np.float64)
         # The averaged record the chains are fitted to.
@@ -297,13 +300,28 @@ class Fitter:
             # y = (1 + g t)(chain + c) + o'' t: the constant stays in the model's offset.
             post = np.ascontiguousarray((t / q)[None, :])
         if "rate" in eff:
-            rt = rate_branch({"gain_s": 1.0, "tau_s": eff["rate"]["tau_s"]}, self.rec.t, self._u)
-            pre = np.ascontiguousarray(self._delayed(rt, eff)[None, :])
+            pre = self._rate_column(eff)
         col = transient(eff, self.rec.t) if self.rest else None
         if col is not None:  # (in z's units: the transient is part of the chain's output)
             c = self.coarse(col)[None, :]
             post = np.ascontiguousarray(c if post is None else np.vstack([post, c]))
         return {"z": np.ascontiguousarray(z), "chain": chain, "w": w, "pre": pre, "post": post, "q": q}
+
+    def _rate_column(self, eff: Effects) -> NDArray[np.float64]:
+        """The rate branch of gain 1 on the training input, delayed like the chain and
+        averaged (a full-rate run: kept per time constant and delay, which a search over
+        another scalar does not move)."""
+        key = (float(eff["rate"]["tau_s"]), float(eff.get("delay", {}).get("delay_s", 0.0)))
+        with self._lock:
+            col = self._rate_cols.get(key)
+        if col is None:
+            rt = rate_branch({"gain_s": 1.0, "tau_s": key[0]}, self.rec.t, self._u)
+            col = np.ascontiguousarray(self._delayed(rt, eff)[None, :])
+            with self._lock:
+                if len(self._rate_cols) >= RATE_COLUMNS_KEPT:
+                    self._rate_cols.clear()
+                self._rate_cols[key] = col
+        return col
 
     def _linear(self, eff: Effects, extra: list[float]) -> Effects:
         e = {k: dict(p) for k, p in eff.items()}
