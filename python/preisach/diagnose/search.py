@@ -39,7 +39,7 @@ from preisach.diagnose.effects import (
     rmse,
 )
 from preisach.diagnose.ranges import CREEP_AMP_MAX, CREEP_TAU_MIN, Ranges, delay_grid, search_ranges
-from preisach.diagnose.rest import start_mode, transient
+from preisach.diagnose.rest import fast_blocks, start_mode, transient
 from preisach.model import PreisachModel
 
 Effects = dict[str, dict[str, Any]]
@@ -63,8 +63,8 @@ SCALARS: dict[str, list[tuple[str, float]]] = {
     "rate": [("tau_s", 0.2)],
 }
 DYNAMIC = ("vibration", "lowpass")
-#: Rate-branch columns a fitter keeps (``Fitter._rate_column``; each is one averaged record).
-RATE_COLUMNS_KEPT = 128
+#: Columns from full-rate runs a fitter keeps (``Fitter._kept``; each is one averaged record).
+COLUMNS_KEPT = 128
 #: Effects whose parameters trade off against each other's (polished together): a delay
 #: and the dynamics share the lag; a low-pass and creep both shape the step response.
 #: (Creep and drift trade off too, but one record cannot tell them apart: polishing one
@@ -224,7 +224,7 @@ class Fitter:
         self._local = threading.local()
         self._lock = threading.Lock()
         self._memo: dict[tuple[Any, ...], tuple[float, list[float]]] = {}
-        self._rate_cols: dict[tuple[float, float], NDArray[np.float64]] = {}
+        self._columns: dict[tuple[Any, ...], Optional[NDArray[np.float64]]] = {}
         self.evaluations = 0
         self._u = np.ascontiguousarray(rec.u, dtype=np.float64)
         # The averaged record the chains are fitted to.
@@ -301,27 +301,38 @@ class Fitter:
             post = np.ascontiguousarray((t / q)[None, :])
         if "rate" in eff:
             pre = self._rate_column(eff)
-        col = transient(eff, self.rec.t) if self.rest else None
-        if col is not None:  # (in z's units: the transient is part of the chain's output)
-            c = self.coarse(col)[None, :]
+        c = self._rest_column(eff) if self.rest else None
+        if c is not None:  # (in z's units: the transient is part of the chain's output)
             post = np.ascontiguousarray(c if post is None else np.vstack([post, c]))
         return {"z": np.ascontiguousarray(z), "chain": chain, "w": w, "pre": pre, "post": post, "q": q}
 
+    def _kept(self, key: tuple[Any, ...], make: Callable[[], Optional[NDArray[np.float64]]]) -> Any:
+        """A column of the fit made from a full-rate run, kept by ``key`` (the
+        parameters it depends on, which a search over another scalar does not move)."""
+        with self._lock:
+            if key in self._columns:
+                return self._columns[key]
+        col = make()
+        with self._lock:
+            if len(self._columns) >= COLUMNS_KEPT:
+                self._columns.clear()
+            self._columns[key] = col
+        return col
+
     def _rate_column(self, eff: Effects) -> NDArray[np.float64]:
         """The rate branch of gain 1 on the training input, delayed like the chain and
-        averaged (a full-rate run: kept per time constant and delay, which a search over
-        another scalar does not move)."""
-        key = (float(eff["rate"]["tau_s"]), float(eff.get("delay", {}).get("delay_s", 0.0)))
-        with self._lock:
-            col = self._rate_cols.get(key)
-        if col is None:
-            rt = rate_branch({"gain_s": 1.0, "tau_s": key[0]}, self.rec.t, self._u)
-            col = np.ascontiguousarray(self._delayed(rt, eff)[None, :])
-            with self._lock:
-                if len(self._rate_cols) >= RATE_COLUMNS_KEPT:
-                    self._rate_cols.clear()
-                self._rate_cols[key] = col
-        return col
+        averaged."""
+        tau, d = float(eff["rate"]["tau_s"]), float(eff.get("delay", {}).get("delay_s", 0.0))
+        return self._kept(("rate", tau, d), lambda: np.ascontiguousarray(self._delayed(
+            rate_branch({"gain_s": 1.0, "tau_s": tau}, self.rec.t, self._u), eff)[None, :]))  # type: ignore[no-any-return]
+
+    def _rest_column(self, eff: Effects) -> Optional[NDArray[np.float64]]:
+        """The transient of a step from rest through the chain's fast blocks, averaged
+        (``preisach.diagnose.rest``; None without one)."""
+        def make() -> Optional[NDArray[np.float64]]:
+            col = transient(eff, self.rec.t)
+            return None if col is None else self.coarse(col)[None, :]
+        return self._kept(("rest",) + _key(fast_blocks(eff)), make)  # type: ignore[no-any-return]
 
     def _linear(self, eff: Effects, extra: list[float]) -> Effects:
         e = {k: dict(p) for k, p in eff.items()}
