@@ -145,15 +145,9 @@ def test_adding_an_effect_never_fits_the_training_record_worse(drift_record):
         "offset_per_s"] == pytest.approx(-0.03 - 0.05 * 0.02, abs=2e-3)
 
 
-@pytest.mark.parametrize("cal_rate", [5e3, 1e3])
-def test_slow_calibration_recovers_drift_and_creep_across_records(cal_rate, monkeypatch):
-    """Drift runs on in absolute time, creep restarts with every record: calibrated across
-    records (masses and level fixed), both come back. The least squares runs on window
-    averages (2 and 10 samples here): exact for noise-free data even with an input that
-    jumps every sample (a creep element run on the averaged output instead was 10 % off)."""
-    from preisach.diagnose import search
-
-    monkeypatch.setattr(search, "CAL_RATE_HZ", cal_rate)
+def _drifting_creeping_records():
+    """Three records of a stage with creep (restarting with each) and drift (in absolute
+    time), and a chain with both at wrong values."""
     w = np.triu(np.random.default_rng(9).uniform(0.2, 1.0, (N_H, N_H)))
     model = PreisachModel(w, RANGE, 0.1, "interpolated")
     truth = {"creep": {"taus_s": [0.3], "amplitudes": [0.05], "normalized": True},
@@ -168,6 +162,34 @@ def test_slow_calibration_recovers_drift_and_creep_across_records(cal_rate, monk
         recs.append(Record("r", t, u, y, DT))
     st = FitState(model, {"creep": {"taus_s": [0.05], "amplitudes": [0.01], "normalized": True},
                           "drift": {"gain_per_s": 0.0, "offset": 0.0, "offset_per_s": 0.0}})
+    return st, recs
+
+
+def test_slow_calibration_folds_sharing_the_records_columns_calibrate_as_alone():
+    """The two folds of a chain's calibration (the first record whole, the others' first
+    or second halves) share each record's output and creep columns: each fold finds what
+    it finds alone, and both recover the stage."""
+    st, recs = _drifting_creeping_records()
+    shared: dict = {}
+    for k in (0, 1):
+        data = [(recs[0], slice(None))] + [(r, slice(0, 4500) if k == 0 else slice(4500, None)) for r in recs[1:]]
+        cal = calibrate_slow(st, data, shared)
+        assert cal.effects == calibrate_slow(st, data).effects
+        assert cal.effects["drift"]["gain_per_s"] == pytest.approx(0.02, rel=1e-2)
+        assert cal.effects["creep"]["taus_s"][0] == pytest.approx(0.3, rel=0.3)
+    assert sum(isinstance(key, tuple) for key in shared) >= 3 * 14  # a grid of time constants per record
+
+
+@pytest.mark.parametrize("cal_rate", [5e3, 1e3])
+def test_slow_calibration_recovers_drift_and_creep_across_records(cal_rate, monkeypatch):
+    """Drift runs on in absolute time, creep restarts with every record: calibrated across
+    records (masses and level fixed), both come back. The least squares runs on window
+    averages (2 and 10 samples here): exact for noise-free data even with an input that
+    jumps every sample (a creep element run on the averaged output instead was 10 % off)."""
+    from preisach.diagnose import search
+
+    monkeypatch.setattr(search, "CAL_RATE_HZ", cal_rate)
+    st, recs = _drifting_creeping_records()
     cal = calibrate_slow(st, [(r, slice(None)) for r in recs])
     assert cal.effects["drift"]["gain_per_s"] == pytest.approx(0.02, rel=1e-3)
     assert cal.effects["drift"]["offset_per_s"] == pytest.approx(-0.03, rel=1e-3)

@@ -326,6 +326,24 @@ BAD_BLOCKS = [
 ]
 
 
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(2, 60), i=st.integers(0, 59), j=st.integers(0, 59), bad=st.sampled_from([math.nan, math.inf, -math.inf]),
+       as_array=st.booleans())
+def test_a_non_finite_mass_anywhere_is_named_by_its_row_and_column(n, i, j, bad, as_array):
+    """Masses are checked a row at a time; the error still names the one bad entry
+    (given as lists, or rows of a NumPy array)."""
+    i, j = sorted((i % n, j % n))
+    w = np.triu(np.full((n, n), 0.01))
+    block = Chain(PreisachModel(w, (0.0, 1.0))).blocks[0]
+    w[i, j] = bad
+    block["weights"] = list(w) if as_array else w.tolist()
+    with pytest.raises(ValueError, match=rf"^blocks\[0\] \(hysteresis\): weights\[{i}\]\[{j}\]: must be finite, got {bad}$"):
+        Chain.from_blocks([block])
+    w[i, j] = 0.01
+    block["weights"] = list(w) if as_array else w.tolist()
+    Chain.from_blocks([block])  # (finite: accepted)
+
+
 @pytest.mark.parametrize("block,msg", BAD_BLOCKS)
 def test_bad_blocks_are_rejected_naming_block_and_field(tmp_path, block, msg):
     d = Chain(_model()).to_dict()

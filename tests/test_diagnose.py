@@ -128,7 +128,7 @@ def test_the_training_record_as_a_holdout_and_irregular_sampling_are_errors(dela
         diagnose(tr, [str(q)], progress=False)
 
 
-def test_delay_found_with_parameters_and_cli_outputs(delay_stage, tmp_path):
+def test_delay_found_with_parameters_and_cli_outputs(delay_stage, tmp_path, capsys):
     st = delay_stage
     from preisach.io import write_csv
 
@@ -145,6 +145,13 @@ def test_delay_found_with_parameters_and_cli_outputs(delay_stage, tmp_path):
     ns = argparse.Namespace(train=paths[0], holdout=paths[1:], n_h=40, baseline=None,
                             json=str(tmp_path / "rep.json"), save_model=str(tmp_path / "aug.json"), plots=None)
     assert run_cli(ns) == 0
+    # Progress by default: a line per step on stderr, each with the time since the start,
+    # the last one the total.
+    steps = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("diagnose: [")]
+    times = [float(ln[len("diagnose: ["):].split(" s]")[0]) for ln in steps]
+    assert len(steps) >= 6 and times == sorted(times)
+    assert "baseline fit on" in steps[0] and any("round 1: + delay" in ln for ln in steps)
+    assert "done in" in steps[-1] and "dominant effect delay" in steps[-1]
     rep = json.loads((tmp_path / "rep.json").read_text())
     for k in ("dominant_effect", "noise_floor", "baseline", "where", "split", "effects"):
         assert k in rep
@@ -208,12 +215,13 @@ def test_a_stage_baseline_is_the_before_and_a_model_file_is_refitted(delay_stage
 @pytest.mark.parametrize("names,seed", [
     ((), 21), (("vibration",), 22), (("lowpass",), 24), (("drift",), 23), (("creep",), 25),
 ])
-def test_small_blind_validation(names, seed):
+def test_small_blind_validation(names, seed, capsys):
     """Key goals on a few fixed-seed stages: right top-1, no false alarm, mode within 3 %,
     drift gain within 10 %, creep element within 25 %, realised shrink >= 70 % on the
-    unseen record."""
+    unseen record; nothing printed without ``progress``."""
     st = bv.make_stage(seed, names)
     rep = diagnose(st["train"], [_rec(h) for h in st["holdouts"]], progress=False)
+    assert capsys.readouterr().err == ""
     found = {e["name"] for e in rep.effects if e["detected"]}
     if not names:
         assert not (found & DYNAMIC), f"false alarm {found}"

@@ -3,6 +3,7 @@ simulator kept as the baseline. Records from the independent rig (``tests/rig.py
 from the project's simulated stage (``preisach.sim.Stage``)."""
 import inspect
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -108,6 +109,39 @@ def _paper_stage_records(stage, fs, rng):
         tt = t0 + np.arange(u.size) / fs
         out.append({"t": tt, "u": u, "y": stage.simulate(tt, u)})
     return out
+
+
+def test_the_fits_on_the_holdouts_halves_side_by_side_are_the_fits_one_by_one():
+    """Every effect's fit on every half of every holdout is one task of a thread pool (each
+    fit has its own session): the same fits as one after another, found where the
+    holdouts' steps ring (a mode of the simulated stage the training sine does not excite)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from preisach.diagnose import crossfit as cf
+    from preisach.diagnose.effects import FitState
+    from preisach.diagnose.search import Trials
+    from preisach.model import PreisachModel, PreisachWarning
+    from preisach.sim import Stage
+
+    rng = np.random.default_rng(3)
+    f0 = float(rng.uniform(600, 1400))
+    stage = Stage.preset("paper", creep=False, resonance_hz=f0, damping=0.02, seed=3)
+    tr, h1, h2 = _paper_stage_records(stage, 50e3, rng)
+    hos = [Record(f"holdout {i + 1}", h["t"], h["u"], h["y"], 1 / 50e3) for i, h in enumerate((h1, h2))]
+    u_range = (float(tr["u"].min()) - 0.4, float(tr["u"].max()) + 0.4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PreisachWarning)  # (the range is padded on purpose, as the diagnosis pads it)
+        st = FitState(PreisachModel.fit(tr["u"], tr["y"], 12, u_range=u_range, output="interpolated"), {})
+    names = ["vibration", "rate"]
+    with ThreadPoolExecutor(2) as ex:
+        side = cf.half_fits(st, names, hos, u_range, 12.5e3, Trials(1), ex.map)
+    alone = cf.half_fits(st, names, hos, u_range, 12.5e3, Trials(1))
+    assert list(side) == [(c, k, i) for c in names for k in (0, 1) for i in (0, 1)]
+    for key, (eff, ranges, gain) in alone.items():
+        assert side[key][0] == eff and side[key][2] == gain, key
+    # The steps (holdout 1) ring: the mode fitted on either of its halves is the stage's.
+    for k in (0, 1):
+        assert abs(side[("vibration", k, 0)][0]["vibration"]["frequency_hz"] / f0 - 1) < 0.03
 
 
 def test_a_mode_only_the_holdouts_show_is_found_cross_fitted_on_the_simulated_stage():

@@ -24,8 +24,9 @@ from __future__ import annotations
 import json
 import math
 import warnings
+from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Mapping, Optional, TypeVar, Union
+from typing import TYPE_CHECKING, Any, Optional, TypeVar, Union
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -71,6 +72,17 @@ def sample_period(t: ArrayLike, what: str = "t") -> float:
         raise ValueError(f"{what}{msg[1:]}" if msg.startswith("t:") else msg) from None
 
 
+def _finite_numbers(x: Any) -> bool:
+    """Every entry of the sequence ``x`` a finite number (checked at once: a model's
+    masses are thousands of them)."""
+    if isinstance(x, np.ndarray):
+        return x.dtype.kind in "biuf" and bool(np.isfinite(x).all())
+    try:
+        return all(map(math.isfinite, x))
+    except (TypeError, OverflowError):
+        return False  # nested, not numbers, or too large for a float: entry by entry
+
+
 def _non_finite(x: Any, path: str) -> Optional[str]:
     """Path of the first non-finite number inside nested dicts/lists, or None."""
     if isinstance(x, Mapping):
@@ -79,6 +91,8 @@ def _non_finite(x: Any, path: str) -> Optional[str]:
             if p is not None:
                 return p
     elif isinstance(x, (list, tuple, np.ndarray)):
+        if _finite_numbers(x):
+            return None
         for i, v in enumerate(x):
             p = _non_finite(v, f"{path}[{i}]")
             if p is not None:
@@ -117,11 +131,12 @@ def _blocks_json(blocks: Any) -> str:
     """JSON text of a list of block dicts; errors name the block."""
     if isinstance(blocks, (str, bytes)) or not isinstance(blocks, (list, tuple)):
         raise ValueError(f"blocks: expected a list of dicts, got {type(blocks).__name__}")
+    texts = []
     for k, b in enumerate(blocks):
         if not isinstance(b, Mapping):
             raise ValueError(f"blocks[{k}]: expected a dict with a 'type' key, got {type(b).__name__}")
-        _dumps(dict(b), f"blocks[{k}] ({b.get('type', '?')})")
-    return _dumps([dict(b) for b in blocks], "blocks")
+        texts.append(_dumps(dict(b), f"blocks[{k}] ({b.get('type', '?')})"))
+    return "[" + ", ".join(texts) + "]"
 
 
 def _check_finite(d: Any) -> None:

@@ -15,7 +15,7 @@ sample was used to fit the parameters it is scored with:
 """
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any, Callable, Optional
 
 import numpy as np
 from numpy.typing import NDArray
@@ -135,8 +135,21 @@ def agree(name: str, params: list[dict[str, Any]]) -> bool:
     return min(v) > 0 and max(v) <= (1 + tol) * min(v)
 
 
+HalfFits = dict[tuple[str, int, int], tuple[Effects, Ranges, float]]
+
+
+def half_fits(st: FitState, names: list[str], hos: list[Record], u_range: tuple[float, float],
+              search_rate_hz: float, trials: Trials, run: Callable[..., Any] = map) -> HalfFits:
+    """Every effect of ``names`` fitted on every half of every holdout (``fit_on``), by
+    (effect, half, holdout); the fits are independent, and ``run`` (a ``map``: a thread
+    pool's runs them side by side) takes them in the order of ``names``."""
+    keys = [(c, k, i) for c in names for k in (0, 1) for i in range(len(hos))]
+    fits = run(lambda key: fit_on(half(hos[key[2]], key[1]), st, key[0], u_range, search_rate_hz, trials), keys)
+    return dict(zip(keys, fits))
+
+
 def holdout_halves(st: FitState, name: str, hos: list[Record], errors: Errors, train: Fitter,
-                   search_rate_hz: float, trials: Trials) -> dict[str, Any]:
+                   search_rate_hz: float, trials: Trials, fits: Optional[HalfFits] = None) -> dict[str, Any]:
     """Effect ``name`` cross-fitted on the holdouts' halves: for each half (first,
     second), fitted on that half of every holdout, the fit kept from the one it explains
     most of (where the effect shows), and every holdout's other half scored with it.
@@ -144,15 +157,18 @@ def holdout_halves(st: FitState, name: str, hos: list[Record], errors: Errors, t
     Returns ``errors`` (per holdout, each half scored with the effect fitted on a first
     or second half: never on itself), ``folds`` (what was fitted on what, the parameters
     found and the masses used; ``_state``, ``_ranges``, ``_gain``, ``_record`` internal)
-    and ``target`` (the holdout the effect shows most on)."""
+    and ``target`` (the holdout the effect shows most on). ``fits``: the fits on the
+    halves (``half_fits``), made here when not given."""
     out = [np.empty(h.y.size) for h in hos]
     folds: list[dict[str, Any]] = []
     for k in (0, 1):
         sl = [slice(0, h.y.size // 2) if k == 0 else slice(h.y.size // 2, None) for h in hos]
         parts = [half(h, k) for h in hos]
-        fits = [fit_on(p, st, name, train.u_range, search_rate_hz, trials) for p in parts]
-        i = int(np.argmax([g for _, _, g in fits]))
-        part, (eff, rg, g) = parts[i], fits[i]
+        if fits is None or (name, k, 0) not in fits:
+            fits = half_fits(st, [name], hos, train.u_range, search_rate_hz, trials)
+        on = [fits[(name, k, i)] for i in range(len(hos))]
+        i = int(np.argmax([g for _, _, g in on]))
+        part, (eff, rg, g) = parts[i], on[i]
         sk, masses = with_effect(train, st, eff)
         for o, e, s in zip(out, errors(sk), sl):
             other = np.ones(e.size, dtype=bool)

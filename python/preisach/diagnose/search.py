@@ -39,7 +39,7 @@ from preisach.diagnose.effects import (
     rmse,
 )
 from preisach.diagnose.ranges import CREEP_AMP_MAX, CREEP_TAU_MIN, Ranges, delay_grid, search_ranges
-from preisach.diagnose.rest import start_mode, transient
+from preisach.diagnose.rest import fast_blocks, start_mode, transient
 from preisach.model import PreisachModel
 
 Effects = dict[str, dict[str, Any]]
@@ -63,6 +63,8 @@ SCALARS: dict[str, list[tuple[str, float]]] = {
     "rate": [("tau_s", 0.2)],
 }
 DYNAMIC = ("vibration", "lowpass")
+#: Columns from full-rate runs a fitter keeps (``Fitter._kept``; each is one averaged record).
+COLUMNS_KEPT = 128
 #: Effects whose parameters trade off against each other's (polished together): a delay
 #: and the dynamics share the lag; a low-pass and creep both shape the step response.
 #: (Creep and drift trade off too, but one record cannot tell them apart: polishing one
@@ -222,6 +224,7 @@ class Fitter:
         self._local = threading.local()
         self._lock = threading.Lock()
         self._memo: dict[tuple[Any, ...], tuple[float, list[float]]] = {}
+        self._columns: dict[tuple[Any, ...], Optional[NDArray[np.float64]]] = {}
         self.evaluations = 0
         self._u = np.ascontiguousarray(rec.u, dtype=np.float64)
         # The averaged record the chains are fitted to.
@@ -297,13 +300,39 @@ class Fitter:
             # y = (1 + g t)(chain + c) + o'' t: the constant stays in the model's offset.
             post = np.ascontiguousarray((t / q)[None, :])
         if "rate" in eff:
-            rt = rate_branch({"gain_s": 1.0, "tau_s": eff["rate"]["tau_s"]}, self.rec.t, self._u)
-            pre = np.ascontiguousarray(self._delayed(rt, eff)[None, :])
-        col = transient(eff, self.rec.t) if self.rest else None
-        if col is not None:  # (in z's units: the transient is part of the chain's output)
-            c = self.coarse(col)[None, :]
+            pre = self._rate_column(eff)
+        c = self._rest_column(eff) if self.rest else None
+        if c is not None:  # (in z's units: the transient is part of the chain's output)
             post = np.ascontiguousarray(c if post is None else np.vstack([post, c]))
         return {"z": np.ascontiguousarray(z), "chain": chain, "w": w, "pre": pre, "post": post, "q": q}
+
+    def _kept(self, key: tuple[Any, ...], make: Callable[[], Optional[NDArray[np.float64]]]) -> Any:
+        """A column of the fit made from a full-rate run, kept by ``key`` (the
+        parameters it depends on, which a search over another scalar does not move)."""
+        with self._lock:
+            if key in self._columns:
+                return self._columns[key]
+        col = make()
+        with self._lock:
+            if len(self._columns) >= COLUMNS_KEPT:
+                self._columns.clear()
+            self._columns[key] = col
+        return col
+
+    def _rate_column(self, eff: Effects) -> NDArray[np.float64]:
+        """The rate branch of gain 1 on the training input, delayed like the chain and
+        averaged."""
+        tau, d = float(eff["rate"]["tau_s"]), float(eff.get("delay", {}).get("delay_s", 0.0))
+        return self._kept(("rate", tau, d), lambda: np.ascontiguousarray(self._delayed(
+            rate_branch({"gain_s": 1.0, "tau_s": tau}, self.rec.t, self._u), eff)[None, :]))  # type: ignore[no-any-return]
+
+    def _rest_column(self, eff: Effects) -> Optional[NDArray[np.float64]]:
+        """The transient of a step from rest through the chain's fast blocks, averaged
+        (``preisach.diagnose.rest``; None without one)."""
+        def make() -> Optional[NDArray[np.float64]]:
+            col = transient(eff, self.rec.t)
+            return None if col is None else self.coarse(col)[None, :]
+        return self._kept(("rest",) + _key(fast_blocks(eff)), make)  # type: ignore[no-any-return]
 
     def _linear(self, eff: Effects, extra: list[float]) -> Effects:
         e = {k: dict(p) for k, p in eff.items()}
@@ -713,7 +742,7 @@ CAL_RATE_HZ = 5e3
 
 
 def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
-                   outputs: Optional[dict[int, NDArray[np.float64]]] = None) -> FitState:
+                   outputs: Optional[dict[Any, Any]] = None) -> FitState:
     """The slow effects of a chain (drift, creep) recalibrated across records, the masses
     and the other effects fixed. One short training record cannot tell them apart: within
     a record both are slow trends, and the masses absorb part of either. Across records
@@ -732,8 +761,8 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
     adjustment to the holdouts). The least squares run on window averages of every
     column (about ``CAL_RATE_HZ``: the averaged equations hold exactly, and their
     solution is that of the full-rate ones up to the noise). ``outputs``: the records'
-    ``x`` by ``id(record)``, computed here when missing and stored (the folds of one
-    chain share them)."""
+    ``x`` by ``id(record)`` and their creep columns (``_creep_columns``), computed here
+    when missing and stored (the folds of one chain share them)."""
     # A creep of several elements (a given baseline chain's) stays as it is.
     creep = "creep" in st.effects and len(st.effects["creep"]["taus_s"]) == 1
     if "drift" not in st.effects and not creep:
@@ -777,11 +806,11 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
         fits: dict[float, tuple[NDArray[np.float64], float]] = {}
 
         def sse_at(lt: float) -> float:
-            tk = math.exp(lt)
-            resp = [_lp(xf, tk, rec.t) - xf for xf, (rec, _) in zip(full_x, data)]
-            col = averaged(resp)
+            cols = [_creep_columns(xf, rec, math.exp(lt), k, drift, outputs)
+                    for xf, (rec, _), (k, _) in zip(full_x, data, windows)]
+            col = np.concatenate([c[0][cut] for c, (_, cut) in zip(cols, windows)])
             # With a drift, its gain also scales the creep (the t k column).
-            tcol = [averaged([kf * tf for kf, tf in zip(resp, times)])] if drift else []
+            tcol = [np.concatenate([c[1][cut] for c, (_, cut) in zip(cols, windows)])] if drift else []
             coef, sse = solve([col] + tcol)
             ci = -2 if drift else -1
             if not 0.0 <= coef[ci] <= CREEP_AMP_MAX:
@@ -820,6 +849,22 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
         c = min(max(float(coef[-1]), 0.0), CREEP_AMP_MAX)
         eff["creep"] = {"taus_s": [float(tau)], "amplitudes": [c], "normalized": True}
     return FitState(st.model, eff, st.train_rmse)
+
+
+def _creep_columns(x: NDArray[np.float64], rec: Record, tau: float, k: int, drift: bool,
+                   cache: Optional[dict[Any, Any]]) -> tuple[NDArray[np.float64], Any]:
+    """The creep element's response ``LP_tau[x] - x`` on the whole of ``rec`` averaged
+    over windows of ``k`` samples, and (with a drift) the same times the record's time;
+    stored in ``cache`` by record and time constant (the folds of a chain's calibration
+    take the same columns on other parts of the records)."""
+    key = (id(rec), tau, k, drift)
+    if cache is not None and key in cache:
+        return cache[key]  # type: ignore[no-any-return]
+    r = _lp(x, tau, rec.t) - x
+    out = (window_mean(r, k), window_mean(r * rec.t, k) if drift else None)
+    if cache is not None:
+        cache[key] = out
+    return out
 
 
 def _lp(x: NDArray[np.float64], tau: float, t: NDArray[np.float64]) -> NDArray[np.float64]:

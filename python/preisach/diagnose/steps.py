@@ -99,7 +99,7 @@ class Run:
         if "drift" not in st.effects and "creep" not in st.effects:
             return self.rest_removed(st, [st.predict(h) - h.y for h in self.hos])
         errs = [np.empty(h.y.size) for h in self.hos]
-        outputs: dict[int, np.ndarray] = {}
+        outputs: dict[Any, Any] = {}
         halves = self.halves
         for k in (0, 1):
             cal = calibrate_slow(st, [(self.tr, slice(None))] + [(h, hv[1 - k]) for h, hv in zip(self.hos, halves)],
@@ -580,11 +580,15 @@ def holdout_halves(run: Run, found: Found, fl: Floors) -> None:
 
     def one(c: str) -> tuple[str, dict[str, Any]]:
         return c, cf.holdout_halves(found.cur, c, run.hos, run.holdout_errors, run.fitter, run.search_rate_hz,
-                                    run.trials)
+                                    run.trials, fits)
 
     passing = []
-    with warnings.catch_warnings(), run.trials.tasks(min(run.trials.workers, len(names))) as ex:
+    with warnings.catch_warnings(), run.trials.tasks(run.trials.workers) as ex:
         warnings.simplefilter("ignore", PreisachWarning)
+        # The fits on the halves, every effect's on every half side by side (the slowest
+        # first: the threads end together), then each effect's folds scored.
+        order = sorted(names, key=lambda c: SLOW_FIRST.index(c) if c in SLOW_FIRST else len(SLOW_FIRST))
+        fits = cf.half_fits(found.cur, order, run.hos, run.fitter.u_range, run.search_rate_hz, run.trials, ex.map)
         for c, xf in ex.map(one, names):
             sc, parts = run.parts_of(xf["errors"])
             why = _halves_refusal(run, found, fl, c, xf, sc, parts)
