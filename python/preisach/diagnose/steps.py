@@ -416,17 +416,27 @@ def accept(run: Run, found: Found, fl: Floors, results: dict[str, Result], rnd: 
     best = min(passing)[2]
     found.accepted.append(best)
     found.move(*results[best][:3])
+    accept_pairs(run, found, fl, best)
+    run.say(f"round {rnd + 1}: accepted {best}: holdout RMSE {found.score:.4g}")
+    return best
+
+
+def accept_pairs(run: Run, found: Found, fl: Floors, best: str) -> None:
+    """The effects fitted with ``best`` as a pair (a mode whose ringing needed a delay)
+    that are real ones of their kind are accepted with it; an accepted effect its fit
+    replaced (a low-pass that stood in for the lag a mode's fit gave to a delay) is
+    dropped."""
+    for x in [k for k in found.accepted if k != best and k in REGISTRY and k not in found.cur.effects]:
+        found.accepted.remove(x)
+        found.tried[x]["refused"] = f"replaced in the fit of {best}"
     for x in found.cur.effects:
         if x not in found.accepted and x not in run.base.effects and not trivial(x, found.cur.effects[x], fl.scale) \
                 and not ends_at_bound(x, found.cur.effects[x], run.fitter.ranges) \
                 and not (x == "lowpass" and lag.is_timing(run.score, found.cur, found.score, run.min_shrink,
                                                           fl.accept, fl.scale.min_delay)):
-            # Fitted with it as a pair (a mode whose ringing needed a delay).
             found.accepted.append(x)
             found.tried[x] = dict(found.tried[best],
                                   score=found.tried.get(x, {}).get("score", found.tried[best]["score"]))
-    run.say(f"round {rnd + 1}: accepted {best}: holdout RMSE {found.score:.4g}")
-    return best
 
 
 def eliminate(run: Run, found: Found, best: str, rnd: int) -> None:
@@ -608,7 +618,9 @@ def holdout_halves(run: Run, found: Found, fl: Floors) -> None:
                       "round": len(found.accepted) + 1, "fitted_on": "holdouts' halves (see split.cross_fit)"}
     found.accepted.append(c)
     found.move(st, sc, parts)
-    run.say(f"accepted {c} (cross-fitted on the holdouts): holdout RMSE {sc:.4g}")
+    accept_pairs(run, found, fl, c)
+    run.say(f"accepted {c} (cross-fitted on the holdouts): holdout RMSE {sc:.4g}; the chain's effects "
+            f"{', '.join(found.accepted)}")
     drop_redundant(run, found, c)
 
 
