@@ -37,25 +37,32 @@ def test_the_shift_is_the_chains_delay_block(samples, n, seed):
 
 
 def test_a_delay_is_fitted_jointly_with_the_starting_staircase():
-    """A record whose start carries unrecorded history (simulated through the chain):
-    the delay fitted with the staircase profiled is the true one."""
+    """A record that starts with a rise through the range after unrecorded history (came
+    down from a random high level: an offset on a ramp, which a delay also makes), then
+    a sine (simulated through the chain): the delay fitted with the staircase profiled
+    is the true one within 1 %, closer than the fit that ignores the start's memory."""
     rng = np.random.default_rng(7)
     hm = bv.true_hysteresis(rng, n_h=40)
     fs = 10e3
+    lo, hi = hm.u_range
+    span = hi - lo
     for _ in range(3):
         d = float(rng.uniform(3e-4, 2e-3))
-        u = bv.waveform("triangle", fs, 0.5, rng)
+        a, b = lo + 0.35 * span, lo + 0.65 * span
+        ramp = np.linspace(lo + 0.05 * span, hi - 0.05 * span, 2000)
+        sine = a + (b - a) * (0.5 + 0.5 * np.sin(2 * np.pi * 20 * np.arange(3000) / fs))
+        u = np.concatenate([ramp, np.linspace(ramp[-1], a, 500), sine])
         t = np.arange(u.size) / fs
-        lo, hi = hm.u_range
-        extrema = [float(rng.uniform(lo + 0.6 * (hi - lo), hi)), float(rng.uniform(lo, lo + 0.3 * (hi - lo)))]
         blocks = Chain(hm, {"delay": {"delay_s": d}}).blocks
-        blocks[0] = dict(blocks[0], initial_extrema=extrema)
+        blocks[0] = dict(blocks[0], initial_extrema=[float(rng.uniform(lo + 0.6 * span, hi))])
         y = Chain.from_blocks(blocks).predict(t, u) + 1e-3 * rng.standard_normal(u.size)
         rec = Record("r", t, u, y, 1.0 / fs)
         stt = FitState(hm, {})
-        added = _fit_delay(stt, [(rec, slice(None))], Bound(0.0, 0.02, False, physical_lo=True),
-                           {"r": profiles(stt, rec)})
-        assert abs(added / d - 1) < 0.05, (added, d)
+        outs = profiles(stt, rec)
+        bound = Bound(0.0, 0.02, False, physical_lo=True)
+        joint = _fit_delay(stt, [(rec, slice(None))], bound, {"r": outs})
+        blind = _fit_delay(stt, [(rec, slice(None))], bound, {"r": outs[:1]})
+        assert abs(joint / d - 1) < 0.01 and abs(joint - d) < abs(blind - d), (joint, blind, d)
 
 
 def _stage_records(seed, delay_s, fs=20e3):
@@ -110,5 +117,7 @@ def test_a_mode_and_a_delay_on_the_rig():
     found = _found(rep)
     assert {"vibration", "delay"} <= set(found) and "lowpass" not in found, _why(rep)
     assert abs(found["vibration"]["params"]["frequency_hz"] / truth["modes"][0][0] - 1) < 0.03
+    # (The chain with the mode finds the lag about one sample, 0.1 ms, short: 12 % here;
+    # the goal of 10 % is not met on this class.)
     lag = truth["delay_s"] + truth["timing_s"]
     assert abs(found["delay"]["params"]["delay_s"] / lag - 1) < 0.15, (found["delay"]["params"], lag)
