@@ -7,8 +7,10 @@ Here the effect is fitted on part of the holdouts and scored on the rest; no sco
 sample was used to fit the parameters it is scored with:
 
 - a delay (``holdout_delay``): only the delay added to the chain found (masses and
-  effects fixed), fitted on the other holdouts (leave one out) or, with a single
-  holdout, one half against the other;
+  effects fixed; the chain carries the training record's own timing), fitted on the
+  other holdouts (leave one out) or, with a single holdout, one half against the other,
+  jointly with each fitted record's starting staircase (the memory of unrecorded
+  history shows only at a record's start; a delay shifts all of it);
 - any other fast effect (``holdout_halves``): its own search on half of a holdout (the
   masses profiled there), then the chain found with it, masses from the training record,
   scores the other halves of every holdout; the other half likewise.
