@@ -7,20 +7,24 @@ Here the effect is fitted on part of the holdouts and scored on the rest; no sco
 sample was used to fit the parameters it is scored with:
 
 - a delay (``holdout_delay``): only the delay added to the chain found (masses and
-  effects fixed), fitted on the other holdouts (leave one out) or, with a single
-  holdout, one half against the other;
+  effects fixed; the chain carries the training record's own timing), fitted on the
+  other holdouts (leave one out) or, with a single holdout, one half against the other,
+  jointly with each fitted record's starting staircase (the memory of unrecorded
+  history shows only at a record's start; a delay shifts all of it);
 - any other fast effect (``holdout_halves``): its own search on half of a holdout (the
   masses profiled there), then the chain found with it, masses from the training record,
   scores the other halves of every holdout; the other half likewise.
 """
 from __future__ import annotations
 
+import math
 from typing import Any, Callable, Optional
 
 import numpy as np
 from numpy.typing import NDArray
 
 from preisach.diagnose.effects import FitState, Record, _grid_then_parabola
+from preisach.diagnose.initial import own_start, predict_from, staircases
 from preisach.diagnose.ranges import Bound, Ranges, delay_grid
 from preisach.diagnose.registry import REGISTRY
 from preisach.diagnose.search import Effects, Fitter, Trials
@@ -36,9 +40,32 @@ def _with_delay(st: FitState, extra: float) -> FitState:
     return FitState(st.model, eff, st.train_rmse)
 
 
-def _fit_delay(st: FitState, parts: list[tuple[Record, slice]], bound: Bound) -> float:
-    """The added delay that fits the parts best (masses and the other effects fixed):
-    a grid (``delay_grid``) up to the bound, then parabolic steps."""
+def shifted(y: NDArray[np.float64], samples: float) -> NDArray[np.float64]:
+    """Rows of ``y`` delayed by ``samples`` (linear interpolation, the first value held
+    before the start): the chain's delay block."""
+    k, f = int(math.floor(samples)), samples - math.floor(samples)
+    pad = np.concatenate([np.repeat(y[:, :1], k + 1, axis=1), y], axis=1)
+    n = y.shape[1]
+    out: NDArray[np.float64] = (1 - f) * pad[:, 1:n + 1] + f * pad[:, :n]
+    return out
+
+
+def profiles(st: FitState, rec: Record) -> NDArray[np.float64]:
+    """The chain's output on ``rec`` without its delay: from rest (the first row) and
+    from each starting staircase (``initial.staircases``; the memory of unrecorded
+    history, which only the part before the input swept its range shows)."""
+    e = {k: v for k, v in st.effects.items() if k != "delay"}
+    bare = FitState(st.model, e, st.train_rmse)
+    return np.array([predict_from(bare, rec, ex) for ex in [None] + staircases(bare)])
+
+
+def _fit_delay(st: FitState, parts: list[tuple[Record, slice]], bound: Bound,
+               outs: dict[str, NDArray[np.float64]]) -> float:
+    """The added delay that fits the parts best (masses and the other effects fixed), a
+    part that holds its record's start with its best starting staircase (``outs``: the
+    ``profiles`` of each record; a delay shifts the whole record, the staircase only its
+    start, so the two are fitted jointly): a grid (``delay_grid``) up to the bound, then
+    parabolic steps."""
     d0 = float(st.effects.get("delay", {}).get("delay_s", 0.0))
     hi = max(bound.hi - d0, 0.0)
     dt = min(r.dt for r, _ in parts)
@@ -47,8 +74,12 @@ def _fit_delay(st: FitState, parts: list[tuple[Record, slice]], bound: Bound) ->
     grid = delay_grid(dt, hi)
 
     def sse(d: float) -> float:
-        s = _with_delay(st, max(d, 0.0))
-        return float(sum(np.sum((s.predict(r) - r.y)[sl] ** 2) for r, sl in parts))
+        total = 0.0
+        for r, sl in parts:
+            e = shifted(outs[r.name], (d0 + max(d, 0.0)) / r.dt)[:, sl] - r.y[sl]
+            s = np.sum(e * e, axis=1)
+            total += float(np.min(s) if sl.start in (None, 0) else s[0])
+        return total
 
     d, _ = _grid_then_parabola(sse, grid)
     return float(min(max(d, 0.0), hi))
@@ -56,30 +87,39 @@ def _fit_delay(st: FitState, parts: list[tuple[Record, slice]], bound: Bound) ->
 
 def holdout_delay(st: FitState, hos: list[Record], errors: Errors, bound: Bound) -> dict[str, Any]:
     """A delay only the holdouts carry, cross-fitted: the added delay fitted on the other
-    holdouts (or the other half of a single one) and each holdout (half) scored with it.
+    holdouts (or the other half of a single one) and each holdout (half) scored with it,
+    with its own starting staircase where its start carries an error of its own
+    (``initial.own_start``: the start is judged apart from the delay).
 
     Returns ``errors`` (per holdout, cross-fitted, as ``errors`` computes them for a
-    chain), ``folds`` (what was fitted on what, and the delay found), ``added_s`` (the
-    delay fitted on every holdout, for the saved chain) and ``state`` (the chain with
-    it)."""
+    chain, the staircases applied), ``plain`` (the same without them), ``folds`` (what
+    was fitted on what, and the delay found), ``added_s`` (the delay fitted on every
+    holdout, for the saved chain) and ``state`` (the chain with it)."""
+    outs = {h.name: profiles(st, h) for h in hos}
     out = [np.empty(h.y.size) for h in hos]
+    plain = [np.empty(h.y.size) for h in hos]
     folds = []
     if len(hos) >= 2:
         for i, h in enumerate(hos):
             fit = [(g, slice(None)) for g in hos if g is not h]
-            d = _fit_delay(st, fit, bound)
-            out[i] = errors(_with_delay(st, d))[i]
+            d = _fit_delay(st, fit, bound, outs)
+            sd = _with_delay(st, d)
+            plain[i] = errors(sd)[i]
+            out[i] = own_start(sd, h, plain[i])[0]
             folds.append({"fit": [g.name for g, _ in fit], "score": h.name, "added_s": d})
     else:
         h = hos[0]
         m = h.y.size // 2
         for on, score, label in ((slice(0, m), slice(m, None), "second"), (slice(m, None), slice(0, m), "first")):
-            d = _fit_delay(st, [(h, on)], bound)
-            out[0][score] = errors(_with_delay(st, d))[0][score]
+            d = _fit_delay(st, [(h, on)], bound, outs)
+            sd = _with_delay(st, d)
+            e = errors(sd)[0]
+            plain[0][score] = e[score]
+            out[0][score] = own_start(sd, h, e)[0][score]
             folds.append({"fit": [f"{h.name} {'first' if label == 'second' else 'second'} half"],
                           "score": f"{h.name} {label} half", "added_s": d})
-    added = _fit_delay(st, [(h, slice(None)) for h in hos], bound)
-    return {"errors": out, "folds": folds, "added_s": added, "state": _with_delay(st, added)}
+    added = _fit_delay(st, [(h, slice(None)) for h in hos], bound, outs)
+    return {"errors": out, "plain": plain, "folds": folds, "added_s": added, "state": _with_delay(st, added)}
 
 
 def consistent(folds: list[dict[str, Any]], min_delay: float) -> bool:

@@ -52,20 +52,39 @@ def concentrated(before: float, after: float, rest: float) -> bool:
     return before >= 2.0 * rest and after <= 0.5 * before
 
 
+def staircases(st: FitState, levels: int = 9) -> list[list[float]]:
+    """The starting staircases tried (``[M]`` or ``[M, m]``, ``m < M``) on a grid of
+    ``levels`` points of the model's range."""
+    lo, hi = st.model.u_range
+    grid = np.linspace(lo, hi, levels)
+    return [[float(M)] if m is None else [float(M), m]
+            for M in grid[1:] for m in [None] + [float(x) for x in grid if x < M]]
+
+
 def estimate(st: FitState, rec: Record, levels: int = 9) -> tuple[list[float], float, float]:
     """The starting staircase of ``rec`` (``[M, m]``, ``[M]`` or none) that fits the
     part before the sweep best (``fitted_part``), on a grid of the model's range;
     returns it with the RMSE of that part before and after."""
     k = fitted_part(rec)
     part = Record(rec.name, rec.t[:k], rec.u[:k], rec.y[:k], rec.dt)
-    lo, hi = st.model.u_range
-    grid = np.linspace(lo, hi, levels)
     before = rmse(predict_from(st, part, None) - part.y)
     best: tuple[float, list[float]] = (before, [])
-    for M in grid[1:]:
-        for m in [None] + [float(x) for x in grid if x < M]:
-            ex = [float(M)] if m is None else [float(M), m]
-            e = rmse(predict_from(st, part, ex) - part.y)
-            if e < best[0]:
-                best = (e, ex)
+    for ex in staircases(st, levels):
+        e = rmse(predict_from(st, part, ex) - part.y)
+        if e < best[0]:
+            best = (e, ex)
     return best[1], before, best[0]
+
+
+def own_start(st: FitState, rec: Record, err: NDArray[np.float64],
+              est: Optional[tuple[list[float], float, float]] = None) -> tuple[NDArray[np.float64], list[float]]:
+    """The error ``err`` of chain ``st`` on ``rec`` with the starting staircase
+    estimated on it (``est``, default ``estimate(st, rec)``), where the part before the
+    sweep carries an error of its own (``concentrated``); returns the error and the
+    staircase kept (empty: none)."""
+    ex, before, after = est if est is not None else estimate(st, rec)
+    k = fitted_part(rec)
+    if not ex or not concentrated(before, after, rmse(err[k:]) if k < err.size else 0.0):
+        return err, []
+    corrected: NDArray[np.float64] = err + predict_from(st, rec, ex) - st.predict(rec)
+    return corrected, ex

@@ -25,7 +25,7 @@ from preisach.diagnose import crossfit as cf
 from preisach.diagnose import kept, lag, rest, sessions
 from preisach.diagnose.crossfit import consistent, holdout_delay
 from preisach.diagnose.effects import CANDIDATES, FitState, Record, rmse
-from preisach.diagnose.initial import concentrated, estimate, fitted_part, predict_from
+from preisach.diagnose.initial import estimate, own_start
 from preisach.diagnose.ranges import ends_at_bound
 from preisach.diagnose.records import RecordLike, check_distinct, holdout_list, load_record, reversals
 from preisach.diagnose.registry import OWN_STEPS, REGISTRY, SLOW_FIRST, Scale, trivial
@@ -418,17 +418,27 @@ def accept(run: Run, found: Found, fl: Floors, results: dict[str, Result], rnd: 
     best = min(passing)[2]
     found.accepted.append(best)
     found.move(*results[best][:3])
+    accept_pairs(run, found, fl, best)
+    run.say(f"round {rnd + 1}: accepted {best}: holdout RMSE {found.score:.4g}")
+    return best
+
+
+def accept_pairs(run: Run, found: Found, fl: Floors, best: str) -> None:
+    """The effects fitted with ``best`` as a pair (a mode whose ringing needed a delay)
+    that are real ones of their kind are accepted with it; an accepted effect its fit
+    replaced (a low-pass that stood in for the lag a mode's fit gave to a delay) is
+    dropped."""
+    for x in [k for k in found.accepted if k != best and k in REGISTRY and k not in found.cur.effects]:
+        found.accepted.remove(x)
+        found.tried[x]["refused"] = f"replaced in the fit of {best}"
     for x in found.cur.effects:
         if x not in found.accepted and x not in run.base.effects and not trivial(x, found.cur.effects[x], fl.scale) \
                 and not ends_at_bound(x, found.cur.effects[x], run.fitter.ranges) \
                 and not (x == "lowpass" and lag.is_timing(run.score, found.cur, found.score, run.min_shrink,
                                                           fl.accept, fl.scale.min_delay)):
-            # Fitted with it as a pair (a mode whose ringing needed a delay).
             found.accepted.append(x)
             found.tried[x] = dict(found.tried[best],
                                   score=found.tried.get(x, {}).get("score", found.tried[best]["score"]))
-    run.say(f"round {rnd + 1}: accepted {best}: holdout RMSE {found.score:.4g}")
-    return best
 
 
 def eliminate(run: Run, found: Found, best: str, rnd: int) -> None:
@@ -614,7 +624,9 @@ def holdout_halves(run: Run, found: Found, fl: Floors) -> None:
                       "round": len(found.accepted) + 1, "fitted_on": "holdouts' halves (see split.cross_fit)"}
     found.accepted.append(c)
     found.move(st, sc, parts)
-    run.say(f"accepted {c} (cross-fitted on the holdouts): holdout RMSE {sc:.4g}")
+    accept_pairs(run, found, fl, c)
+    run.say(f"accepted {c} (cross-fitted on the holdouts): holdout RMSE {sc:.4g}; the chain's effects "
+            f"{', '.join(found.accepted)}")
     drop_redundant(run, found, c)
 
 
@@ -637,18 +649,41 @@ def holdout_effects(run: Run, found: Found, fl: Floors) -> None:
     holdout_delay_step(run, found, fl)
 
 
+def timing_chain(run: Run, cur: FitState) -> FitState:
+    """The chain ``cur`` with the training record's own timing (a delay shorter than the
+    sampling explains, not reported) as a delay block, the masses refitted with it: without
+    it the masses absorb that lag as wider loops, which act as a lag on slow inputs but not
+    at steps, and a further delay the holdouts carry would come out different on each."""
+    if "delay" in cur.effects:
+        return cur
+    with warnings.catch_warnings(), run.trials.search():
+        warnings.simplefilter("ignore", PreisachWarning)
+        eff = REGISTRY["delay"].fit(run.fitter, cur.effects)
+        if eff["delay"]["delay_s"] <= 0:
+            return cur
+        return run.fine.state(eff)
+
+
 def holdout_delay_step(run: Run, found: Found, fl: Floors) -> None:
     """A delay only the holdouts carry (the loop reads another channel than the one the
-    model was identified on): fitted on some holdouts, scored on the others."""
+    model was identified on): added to the chain with the training record's timing,
+    fitted on some holdouts, scored on the others; each holdout's start with its own
+    staircase on both sides of the comparison (an error at the start alone is the
+    initial state's, judged next)."""
     if "delay" not in run.candidates or "delay" in found.accepted or found.score <= 1.2 * fl.accept:
         return
-    xf = holdout_delay(found.cur, run.hos, run.holdout_errors, run.fitter.ranges["delay"]["delay_s"])
-    sc, parts_x = run.parts_of(xf["errors"])
-    g = gain(found.score, sc)
-    run.say(f"delay fitted on the holdouts (cross-fitted): holdout RMSE {sc:.4g} (without: {found.score:.4g}); "
+    base = timing_chain(run, found.cur)
+    e0 = run.holdout_errors(base)
+    sc0, _ = run.parts_of([own_start(base, h, e)[0] for h, e in zip(run.hos, e0)])
+    xf = holdout_delay(base, run.hos, run.holdout_errors, run.fitter.ranges["delay"]["delay_s"])
+    sc, _ = run.parts_of(xf["errors"])
+    sc_plain, parts_x = run.parts_of(xf["plain"])
+    g = gain(sc0, sc)
+    run.say(f"delay fitted on the holdouts (cross-fitted): holdout RMSE {sc:.4g} (without: {sc0:.4g}; each holdout's "
+            f"start with its own staircase); "
             + ", ".join(f"{1e3 * f['added_s']:.3g} ms on {'+'.join(f['fit'])}" for f in xf["folds"]))
     why = None
-    if g < run.min_shrink or found.score - sc < 0.5 * fl.accept or sc >= fl.hyst_alone:
+    if g < run.min_shrink or sc0 - sc < 0.5 * fl.accept or sc_plain >= fl.hyst_alone:
         why = "no gain on the holdouts cross-fitted"
     elif not consistent(xf["folds"], fl.scale.min_delay):
         why = "the holdouts disagree on the delay"
@@ -656,12 +691,12 @@ def holdout_delay_step(run: Run, found: Found, fl: Floors) -> None:
         why = "at its search bound: " + "; ".join(ends_at_bound("delay", xf["state"].effects["delay"],
                                                                  run.fitter.ranges))
     found.cross_fit["delay"] = {"folds": xf["folds"], "added_s": xf["added_s"],
-                                "base_delay_s": float(found.cur.effects.get("delay", {}).get("delay_s", 0.0))}
+                                "base_delay_s": float(base.effects.get("delay", {}).get("delay_s", 0.0))}
     if why is None:
-        found.tried["delay"] = {"state": xf["state"], "rmse_after": sc, "rmse_current": found.score, "score": g,
+        found.tried["delay"] = {"state": xf["state"], "rmse_after": sc, "rmse_current": sc0, "score": g,
                                 "round": len(found.accepted) + 1, "fitted_on": "holdouts"}
         found.accepted.append("delay")
-        found.move(xf["state"], sc, parts_x)
+        found.move(xf["state"], sc_plain, parts_x)
     else:
         found.cross_fit["delay"]["refused"] = why
 
@@ -673,12 +708,8 @@ def initial_state(run: Run, found: Found, fl: Floors) -> None:
         return
     cur, hos = found.cur, run.hos
     est = {h.name: estimate(cur, h) for h in hos}
-    errs = []
-    for e, ho in zip(run.holdout_errors(cur), hos):
-        k = fitted_part(ho)
-        own = concentrated(est[ho.name][1], est[ho.name][2], rmse(e[k:]) if k < e.size else 0.0)
-        # Only a staircase whose part's error is its own is kept.
-        errs.append(e + predict_from(cur, ho, est[ho.name][0]) - cur.predict(ho) if own else e)
+    # Only a staircase whose part's error is its own is kept.
+    errs = [own_start(cur, ho, e, est[ho.name])[0] for e, ho in zip(run.holdout_errors(cur), hos)]
     sc = rmse(np.concatenate(errs))
     g = gain(found.score, sc)
     run.say(f"initial state of each holdout: holdout RMSE {sc:.4g} (without: {found.score:.4g})")
