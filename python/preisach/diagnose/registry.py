@@ -64,9 +64,12 @@ class Effect:
         """This effect's search ranges (from the data)."""
         return ranges.get(self.name, {})
 
-    def fit(self, fitter: Fitter, base: Effects, h: Optional[NDArray[np.float64]] = None) -> Effects:
-        """The chain ``base`` plus this effect, searched on ``fitter``'s record."""
-        return fitter.add(base, self.name, h)
+    def fit(self, fitter: Fitter, base: Effects, h: Optional[NDArray[np.float64]] = None,
+            held: Optional[Callable[[Effects], float]] = None) -> Effects:
+        """The chain ``base`` plus this effect, searched on ``fitter``'s record (``held``:
+        a chain's cross-fitted error on the other records, for the effects whose search
+        chooses on them)."""
+        return fitter.add(base, self.name, h, held)
 
 
 def _delay(p: Params, s: Scale) -> bool:

@@ -49,6 +49,8 @@ R = TypeVar("R")
 #: The same across records (``calibrate_slow``): every record restarts the element, so
 #: the amplitude and the time constant separate better than on one record.
 CREEP_CAL_TAU_MAX_RECORDS = 10.0
+#: Creep time constants per decade of the grid whose chains the held-out records score.
+CREEP_PER_DECADE = 2
 
 #: Scalars polished per effect: (parameter, first step: relative, or in log units; the
 #: ranges come from the data, ``preisach.diagnose.ranges``). A mode's frequency needs
@@ -421,9 +423,12 @@ class Fitter:
         return eff, fx
 
     # -- candidate searches -----------------------------------------------------------
-    def add(self, base: Effects, name: str, h: Optional[NDArray[np.float64]] = None) -> Effects:
+    def add(self, base: Effects, name: str, h: Optional[NDArray[np.float64]] = None,
+            held: Optional[Callable[[Effects], float]] = None) -> Effects:
         """Chain ``base`` plus effect ``name``: the effect's own search with the others
-        fixed, then a joint polish of the coupled effects."""
+        fixed, then a joint polish of the coupled effects. ``held``: a chain's error on
+        records it was not fitted on (cross-fitted); with it, creep's time constant is
+        chosen on them (:meth:`creep_held`)."""
         r = self.rec
         eff = {k: dict(p) for k, p in base.items()}
         j_base = self.J(eff)
@@ -464,6 +469,8 @@ class Fitter:
             eff = self.mode_band(eff, h)
             if self.rest:
                 eff = start_mode(self.along, eff)
+        elif name == "creep" and held is not None:
+            return self.with_linear(self.creep_held(eff, held))
         elif name == "creep":
             tau, c = (self.slow or self).creep_init(eff)
             eff["creep"] = {"taus_s": [tau], "amplitudes": [c], "normalized": True}
@@ -546,8 +553,48 @@ class Fitter:
         e = dict(eff, creep={"taus_s": [float(math.exp(lt))], "amplitudes": [amps[lt]], "normalized": True})
         return e, fx
 
+    def creep_held(self, eff: Effects, held: Callable[[Effects], float]) -> Effects:
+        """Creep (one element) whose time constant the held-out records choose. One record
+        rarely tells creep's time constants apart: an identification sine shows an element
+        only as a phase lag at its own frequency and a slow trend of its mean, which a fast
+        element of one amplitude fits as well as a slow one of another (and a slow one as
+        well as a drift). Records with other input histories (steps held for as long as the
+        creep) tell them apart. So: time constants on a grid (``CREEP_PER_DECADE`` per
+        decade over the range), at each the amplitude and the masses fitted on the training
+        record (profiled), the chain scored by ``held`` (its error on the other records,
+        cross-fitted); then parabolic steps on that score around the best. Time constants
+        that do not fit the training record better than no creep are not candidates."""
+        bt = self.ranges["creep"]["tau"]
+        slow = self.slow or self
+        j0 = slow.J(eff)
+        amps: dict[float, float] = {}
+
+        def chain(lt: float) -> Effects:
+            return dict(eff, creep={"taus_s": [float(math.exp(lt))], "amplitudes": [amps[lt]], "normalized": True})
+
+        n = max(3, int(math.ceil(CREEP_PER_DECADE * math.log10(bt.hi / bt.lo))) + 1)
+        grid = [float(x) for x in np.log(np.geomspace(bt.lo, bt.hi, n))]
+        fits = self.trials.map(lambda lt: slow.creep_amp(eff, math.exp(lt), refine=1), grid)
+        for lt, (c, fx) in zip(grid, fits):
+            amps[lt] = c if fx < j0 else 0.0
+        if not any(amps.values()):
+            lt = grid[int(np.argmin([fx for _, fx in fits]))]
+            return dict(eff, creep={"taus_s": [float(math.exp(lt))], "amplitudes": [1e-4], "normalized": True})
+        none = held(eff)  # (a time constant that does not fit the training record scores as no creep)
+
+        def score(lt: float) -> float:
+            if lt not in amps:
+                c, fx = slow.creep_amp(eff, math.exp(lt), refine=1)
+                amps[lt] = c if fx < j0 else 0.0
+            return held(chain(lt)) if amps[lt] > 0 else none
+
+        known = dict(zip(grid, self.trials.map(score, grid)))
+        lt, _ = _parabolic_search(score, [], grid[0], grid[-1], refine=2, expand=0, known=known)
+        return chain(lt) if amps[lt] > 0 else dict(eff, creep={"taus_s": [float(math.exp(lt))],
+                                                               "amplitudes": [1e-4], "normalized": True})
+
     def creep_init(self, eff: Effects) -> tuple[float, float]:
-        """Creep (one element): a grid over the time constant (its range: 5 ms to 3x the record), the
+        """Creep (one element) on the training record alone: a grid over the time constant, the
         amplitude refitted at each, then parabolic steps around the best. Where the record
         cannot tell time constants apart (the error equal to 2e-4 of it), the smallest
         amplitude is taken: a long element with a large amplitude fits the record as well

@@ -341,7 +341,7 @@ def fit_round(run: Run, found: Found, fl: Floors, todo: list[str], rnd: int) -> 
     def one(c: str, base: Effects = found.cur.effects) -> tuple[str, FitState, float, np.ndarray, float, float]:
         t0 = time.perf_counter()
         with trials.search():
-            eff = REGISTRY[c].fit(fitter, base)
+            eff = REGISTRY[c].fit(fitter, base, held=lambda e: run.score(fitter.state(e)))
             st = fitter.state(eff)
         sc, parts = run.score_parts(st)
         return c, st, sc, parts, fitter.J(eff), time.perf_counter() - t0
