@@ -413,8 +413,11 @@ class Fitter:
                 if n == "creep" and len(eff["creep"]["taus_s"]) > 1:
                     continue  # a given chain's creep of several elements is kept
                 if n == "creep":
-                    lt = math.log(float(eff["creep"]["taus_s"][0]))
-                    eff, fx = self.line_creep(eff, [lt - 0.2 * scale, lt, lt + 0.2 * scale], refine)
+                    # Only the amplitude: the time constant is the held-out records' choice
+                    # (``creep_held``), which one record rarely makes well.
+                    tau, c0 = float(eff["creep"]["taus_s"][0]), float(eff["creep"]["amplitudes"][0])
+                    c, fx = self.creep_amp({k: v for k, v in eff.items() if k != "creep"}, tau, c0, refine)
+                    eff = dict(eff, creep={"taus_s": [tau], "amplitudes": [c], "normalized": True})
                     continue
                 for key, _ in SCALARS[n]:
                     eff, fx = self.line(eff, n, key, scale, refine)
@@ -553,6 +556,16 @@ class Fitter:
         e = dict(eff, creep={"taus_s": [float(math.exp(lt))], "amplitudes": [amps[lt]], "normalized": True})
         return e, fx
 
+    def timing(self, eff: Effects) -> Effects:
+        """The chain with the record's own timing: a delay of at most two samples (what the
+        sampling explains: an ADC's latency, a DAC's hold), fitted on the profiled error.
+        At the drive's frequency such a lag widens the loops as a creep element does, and
+        the amplitude fitted to a record that shows little else of the creep takes it."""
+        hi = 1.99 * self.rec.dt
+        f, fm = self.along(lambda d: dict(eff, delay={"delay_s": d}))
+        d, _ = _grid_then_parabola(f, np.linspace(0.0, hi, 5), fmany=fm)
+        return dict(eff, delay={"delay_s": float(min(max(d, 0.0), hi))}) if d > 0 else eff
+
     def creep_held(self, eff: Effects, held: Callable[[Effects], float]) -> Effects:
         """Creep (one element) whose time constant the held-out records choose. One record
         rarely tells creep's time constants apart: an identification sine shows an element
@@ -566,6 +579,8 @@ class Fitter:
         that do not fit the training record better than no creep are not candidates."""
         bt = self.ranges["creep"]["tau"]
         slow = self.slow or self
+        if "delay" not in eff:
+            eff = slow.timing(eff)
         j0 = slow.J(eff)
         amps: dict[float, float] = {}
 
