@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 import rig
 
+from preisach import PreisachModel
+from preisach.chain import Chain
 from preisach.diagnose import diagnose
 from preisach.diagnose.effects import Record, rmse
 from preisach.diagnose.search import Fitter
@@ -83,10 +85,6 @@ def test_independent_stage_long_creep_is_creep_not_drift():
     found = {e["name"] for e in rep.effects if e["detected"]}
     assert rep.dominant_effect == "creep" and "drift" not in found, found
     b = st["blind"]
-    from preisach.chain import Chain
-
     after = rmse(Chain.from_dict(rep.augmented_chain_dict()).predict(b["t"], b["u"]) - b["y"])
-    from preisach import PreisachModel
-
     before = rmse(PreisachModel.from_dict(rep.baseline_model_dict()).predict(b["u"]) - b["y"])
     assert after < 0.3 * before
