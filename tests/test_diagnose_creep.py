@@ -88,3 +88,40 @@ def test_independent_stage_long_creep_is_creep_not_drift():
     after = rmse(Chain.from_dict(rep.augmented_chain_dict()).predict(b["t"], b["u"]) - b["y"])
     before = rmse(PreisachModel.from_dict(rep.baseline_model_dict()).predict(b["u"]) - b["y"])
     assert after < 0.3 * before
+
+
+def test_a_choice_on_the_holdouts_is_judged_cross_fitted():
+    """Each half is scored by the chain that did best on the other halves: a chain that
+    wins overall by one lucky half does not score its luck."""
+    from types import SimpleNamespace
+
+    from preisach.diagnose.steps import Held
+
+    hos = [SimpleNamespace(y=np.zeros(100)), SimpleNamespace(y=np.zeros(40))]
+    run = SimpleNamespace(hos=hos, halves=[(slice(0, 50), slice(50, None)), (slice(0, 20), slice(20, None))])
+    held = Held(run, None)
+    # Parts: holdout 1 first, second; holdout 2 first, second.
+    held.seen = [np.array([1.0, 1.0, 1.0, 1.0]),   # steady
+                 np.array([0.1, 2.0, 0.1, 2.0]),   # good on the first halves only
+                 np.array([3.0, 0.5, 3.0, 0.5])]   # good on the second halves only
+    sc, parts = held.cross_fitted()
+    # First halves scored by the best on the second halves (the third), and vice versa.
+    assert parts.tolist() == [3.0, 2.0, 3.0, 2.0]
+    w = np.array([50, 50, 20, 20])
+    assert sc == pytest.approx(np.sqrt(np.sum(w * parts ** 2) / w.sum()))
+    held.seen = held.seen[:1] + [np.array([0.5, 0.6, 0.5, 0.6])]  # better on both halves
+    assert held.cross_fitted()[1].tolist() == [0.5, 0.6, 0.5, 0.6]
+
+
+def test_independent_stage_drift_stays_drift():
+    """A drift in absolute time (the independent stage, seed 1010): drift, and no creep."""
+    st = bv.make_stage(1010, ("drift",))
+    rep = diagnose(st["train"], [{k: h[k] for k in "tuy"} for h in st["holdouts"]], progress=False)
+    found = {e["name"] for e in rep.effects if e["detected"]}
+    assert rep.dominant_effect == "drift" and "creep" not in found, found
+
+
+def test_rig_without_creep_gets_no_creep():
+    """The rig's `none` class (seed 1): whatever else is found there, not creep."""
+    _, rep = _rig_case("none", 1)
+    assert "creep" not in {e["name"] for e in rep.effects if e["detected"]}
