@@ -472,11 +472,9 @@ class Fitter:
             eff = self.mode_band(eff, h)
             if self.rest:
                 eff = start_mode(self.along, eff)
-        elif name == "creep" and held is not None:
-            return self.with_linear(self.creep_held(eff, held))
         elif name == "creep":
-            tau, c = (self.slow or self).creep_init(eff)
-            eff["creep"] = {"taus_s": [tau], "amplitudes": [c], "normalized": True}
+            # Without held-out records the training record chooses (as well as it can).
+            return self.with_linear(self.creep_held(eff, held if held is not None else self.J))
         elif name == "drift":
             gmax = min(0.1, 0.5 * self.ranges["drift"]["gain_per_s"].hi)
             f, fm = (self.slow or self).along(
@@ -536,26 +534,6 @@ class Fitter:
                         c, fx = v, fv
         return float(c), fx
 
-    def line_creep(self, eff: Effects, lt_pts: list[float], refine: int = 2) -> tuple[Effects, float]:
-        """Creep's time constant searched with its amplitude refitted at every trial: the
-        two trade off along a curved valley (a longer element needs a larger amplitude),
-        which coordinate steps cross only slowly."""
-        bt = self.ranges["creep"]["tau"]
-        hi = math.log(bt.hi)
-        amps: dict[float, float] = {}
-        c0 = float(eff["creep"]["amplitudes"][0]) if "creep" in eff else 0.03
-
-        def f(lt: float) -> float:
-            c, fx = self.creep_amp(eff, math.exp(lt), c0)
-            amps[lt] = c
-            return fx
-
-        lo = math.log(bt.lo)
-        pts = sorted({min(max(x, lo), hi) for x in lt_pts})
-        lt, fx = _parabolic_search(f, pts, lo, hi, refine=refine, expand=3)
-        e = dict(eff, creep={"taus_s": [float(math.exp(lt))], "amplitudes": [amps[lt]], "normalized": True})
-        return e, fx
-
     def timing(self, eff: Effects) -> Effects:
         """The chain with the record's own timing: a delay of at most two samples (what the
         sampling explains: an ADC's latency, a DAC's hold), fitted on the profiled error.
@@ -574,9 +552,11 @@ class Fitter:
         well as a drift). Records with other input histories (steps held for as long as the
         creep) tell them apart. So: time constants on a grid (``CREEP_PER_DECADE`` per
         decade over the range), at each the amplitude and the masses fitted on the training
-        record (profiled), the chain scored by ``held`` (its error on the other records,
-        cross-fitted); then parabolic steps on that score around the best. Time constants
-        that do not fit the training record better than no creep are not candidates."""
+        record (profiled), the chain scored by ``held`` (its error on the other records;
+        ``Fitter.add`` passes the training error when there are none); then parabolic steps
+        on that score around the best. Time constants that do not fit the training record
+        better than no creep score as no creep. The chain's own timing is fitted first
+        (:meth:`timing`)."""
         bt = self.ranges["creep"]["tau"]
         slow = self.slow or self
         if "delay" not in eff:
@@ -607,23 +587,6 @@ class Fitter:
         lt, _ = _parabolic_search(score, [], grid[0], grid[-1], refine=2, expand=0, known=known)
         return chain(lt) if amps[lt] > 0 else dict(eff, creep={"taus_s": [float(math.exp(lt))],
                                                                "amplitudes": [1e-4], "normalized": True})
-
-    def creep_init(self, eff: Effects) -> tuple[float, float]:
-        """Creep (one element) on the training record alone: a grid over the time constant, the
-        amplitude refitted at each, then parabolic steps around the best. Where the record
-        cannot tell time constants apart (the error equal to 2e-4 of it), the smallest
-        amplitude is taken: a long element with a large amplitude fits the record as well
-        and compresses every other one."""
-        bt = self.ranges["creep"]["tau"]
-        taus = [float(x) for x in np.geomspace(bt.lo, bt.hi, 8)]
-        fits = self.trials.map(lambda tau: self.creep_amp(eff, tau, refine=1), taus)
-        trials = [(fx, c, tau) for tau, (c, fx) in zip(taus, fits)]
-        best = min(trials)[0]
-        fx, c, tau = min((t for t in trials if t[0] <= best * (1 + 2e-4)), key=lambda t: t[1])
-        step = math.log(trials[1][2] / trials[0][2]) / 2
-        e, _ = self.line_creep(dict(eff, creep={"taus_s": [tau], "amplitudes": [c], "normalized": True}),
-                               [math.log(tau) - step, math.log(tau), math.log(tau) + step])
-        return float(e["creep"]["taus_s"][0]), max(float(e["creep"]["amplitudes"][0]), 1e-4)
 
     def mode_band(self, eff: Effects, h: Optional[NDArray[np.float64]]) -> Effects:
         """A lightly damped mode: frequency and damping fitted on the error in a band
