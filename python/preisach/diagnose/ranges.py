@@ -17,11 +17,11 @@ from numpy.typing import NDArray
 
 #: Shortest creep time constant searched: faster "creep" is a low-pass's business.
 CREEP_TAU_MIN = 5e-3
-#: Longest creep time constant searched, in training-record lengths: a longer one shows
-#: only its initial slope on the record, and the fit trades a large amplitude with a long
-#: time constant for it, which compresses the output towards its first value on any
-#: other record (the gain is 1 - amplitude until the element has moved).
-CREEP_TAU_MAX_RECORDS = 3.0
+#: Longest creep time constant searched, in training-record lengths: beyond the record,
+#: where an element shows only its first slope and curvature (the held-out records,
+#: other input histories, choose the time constant; a drift instead runs on in absolute
+#: time across them).
+CREEP_TAU_MAX_RECORDS = 10.0
 #: Largest creep amplitude searched (realistic stages creep 1-10 %).
 CREEP_AMP_MAX = 0.12
 #: Longest delay searched, as a share of the slowest excitation's period (and at most an
@@ -81,7 +81,7 @@ def search_ranges(u: NDArray[np.float64], dt_record: float, duration: float, dt_
     - low-pass cutoff: from the cutoff whose group delay is the longest delay searched
       to 0.4 of the fit's sample rate (a low-pass there is no low-pass);
     - mode: 50 Hz to 0.45 of the fit's Nyquist frequency; damping 1e-3 to 0.5;
-    - creep: time constant 5 ms (faster is a low-pass) to 3 record lengths, amplitude 0
+    - creep: time constant 5 ms (faster is a low-pass) to 10 record lengths, amplitude 0
       (physical) to 0.12;
     - drift gain: +-1 / record length (more doubles the output over the record);
     - rate time constant: two fit samples to a quarter of the slowest period."""

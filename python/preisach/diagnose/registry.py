@@ -64,9 +64,12 @@ class Effect:
         """This effect's search ranges (from the data)."""
         return ranges.get(self.name, {})
 
-    def fit(self, fitter: Fitter, base: Effects, h: Optional[NDArray[np.float64]] = None) -> Effects:
-        """The chain ``base`` plus this effect, searched on ``fitter``'s record."""
-        return fitter.add(base, self.name, h)
+    def fit(self, fitter: Fitter, base: Effects, h: Optional[NDArray[np.float64]] = None,
+            held: Optional[Callable[[Effects], float]] = None) -> Effects:
+        """The chain ``base`` plus this effect, searched on ``fitter``'s record (``held``:
+        a chain's cross-fitted error on the other records, for the effects whose search
+        chooses on them)."""
+        return fitter.add(base, self.name, h, held)
 
 
 def _delay(p: Params, s: Scale) -> bool:
@@ -115,8 +118,9 @@ REGISTRY: dict[str, Effect] = {e.name: e for e in (
            "spectrum's peaks fitted in a band, judged on the profiled error",
            "damping at most 0.15 (more is a lag) and a frequency below 0.4 x the fit's rate", _vibration,
            agree=("frequency_hz", 0.03)),
-    Effect("creep", "creep", ("taus_s", "amplitudes"), "Fitter.creep_init: a grid of time constants, the "
-           "amplitude refitted at each (Fitter.creep_amp, Fitter.line_creep)",
+    Effect("creep", "creep", ("taus_s", "amplitudes"), "Fitter.creep_held: a grid of time constants from 5 ms "
+           "to 10 record lengths, the amplitude and masses fitted on the training record at each "
+           "(Fitter.creep_amp), the time constant chosen by the chain's cross-fitted error on the held-out records",
            "amplitudes summing to 0.3 % or more, a time constant of 5 ms or more", _creep, slow=True,
            cross_fit=""),
     Effect("drift", "drift", ("gain_per_s",), "Fitter.add: a grid of gains on the slow fitter, the offset "

@@ -49,6 +49,8 @@ R = TypeVar("R")
 #: The same across records (``calibrate_slow``): every record restarts the element, so
 #: the amplitude and the time constant separate better than on one record.
 CREEP_CAL_TAU_MAX_RECORDS = 10.0
+#: Creep time constants per decade of the grid whose chains the held-out records score.
+CREEP_PER_DECADE = 2
 
 #: Scalars polished per effect: (parameter, first step: relative, or in log units; the
 #: ranges come from the data, ``preisach.diagnose.ranges``). A mode's frequency needs
@@ -440,8 +442,11 @@ class Fitter:
                 if n == "creep" and len(eff["creep"]["taus_s"]) > 1:
                     continue  # a given chain's creep of several elements is kept
                 if n == "creep":
-                    lt = math.log(float(eff["creep"]["taus_s"][0]))
-                    eff, fx = self.line_creep(eff, [lt - 0.2 * scale, lt, lt + 0.2 * scale], refine)
+                    # Only the amplitude: the time constant is the held-out records' choice
+                    # (``creep_held``), which one record rarely makes well.
+                    tau, c0 = float(eff["creep"]["taus_s"][0]), float(eff["creep"]["amplitudes"][0])
+                    c, fx = self.creep_amp({k: v for k, v in eff.items() if k != "creep"}, tau, c0, refine)
+                    eff = dict(eff, creep={"taus_s": [tau], "amplitudes": [c], "normalized": True})
                     continue
                 for key, _ in SCALARS[n]:
                     eff, fx = self.line(eff, n, key, scale, refine)
@@ -450,9 +455,12 @@ class Fitter:
         return eff, fx
 
     # -- candidate searches -----------------------------------------------------------
-    def add(self, base: Effects, name: str, h: Optional[NDArray[np.float64]] = None) -> Effects:
+    def add(self, base: Effects, name: str, h: Optional[NDArray[np.float64]] = None,
+            held: Optional[Callable[[Effects], float]] = None) -> Effects:
         """Chain ``base`` plus effect ``name``: the effect's own search with the others
-        fixed, then a joint polish of the coupled effects."""
+        fixed, then a joint polish of the coupled effects. ``held``: a chain's error on
+        records it was not fitted on (cross-fitted); with it, creep's time constant is
+        chosen on them (:meth:`creep_held`)."""
         r = self.rec
         eff = {k: dict(p) for k, p in base.items()}
         j_base = self.J(eff)
@@ -494,8 +502,8 @@ class Fitter:
             if self.rest:
                 eff = start_mode(self.along, eff)
         elif name == "creep":
-            tau, c = (self.slow or self).creep_init(eff)
-            eff["creep"] = {"taus_s": [tau], "amplitudes": [c], "normalized": True}
+            # Without held-out records the training record chooses (as well as it can).
+            return self.with_linear(self.creep_held(eff, held if held is not None else self.J))
         elif name == "drift":
             gmax = min(0.1, 0.5 * self.ranges["drift"]["gain_per_s"].hi)
             f, fm = (self.slow or self).along(
@@ -555,42 +563,59 @@ class Fitter:
                         c, fx = v, fv
         return float(c), fx
 
-    def line_creep(self, eff: Effects, lt_pts: list[float], refine: int = 2) -> tuple[Effects, float]:
-        """Creep's time constant searched with its amplitude refitted at every trial: the
-        two trade off along a curved valley (a longer element needs a larger amplitude),
-        which coordinate steps cross only slowly."""
+    def timing(self, eff: Effects) -> Effects:
+        """The chain with the record's own timing: a delay of at most two samples (what the
+        sampling explains: an ADC's latency, a DAC's hold), fitted on the profiled error.
+        At the drive's frequency such a lag widens the loops as a creep element does, and
+        the amplitude fitted to a record that shows little else of the creep takes it."""
+        hi = 1.99 * self.rec.dt
+        f, fm = self.along(lambda d: dict(eff, delay={"delay_s": d}))
+        d, _ = _grid_then_parabola(f, np.linspace(0.0, hi, 5), fmany=fm)
+        return dict(eff, delay={"delay_s": float(min(max(d, 0.0), hi))}) if d > 0 else eff
+
+    def creep_held(self, eff: Effects, held: Callable[[Effects], float]) -> Effects:
+        """Creep (one element) whose time constant the held-out records choose. One record
+        rarely tells creep's time constants apart: an identification sine shows an element
+        only as a phase lag at its own frequency and a slow trend of its mean, which a fast
+        element of one amplitude fits as well as a slow one of another (and a slow one as
+        well as a drift). Records with other input histories (steps held for as long as the
+        creep) tell them apart. So: time constants on a grid (``CREEP_PER_DECADE`` per
+        decade over the range), at each the amplitude and the masses fitted on the training
+        record (profiled), the chain scored by ``held`` (its error on the other records;
+        ``Fitter.add`` passes the training error when there are none); then parabolic steps
+        on that score around the best. Time constants that do not fit the training record
+        better than no creep score as no creep. The chain's own timing is fitted first
+        (:meth:`timing`)."""
         bt = self.ranges["creep"]["tau"]
-        hi = math.log(bt.hi)
+        slow = self.slow or self
+        if "delay" not in eff:
+            eff = slow.timing(eff)
+        j0 = slow.J(eff)
         amps: dict[float, float] = {}
-        c0 = float(eff["creep"]["amplitudes"][0]) if "creep" in eff else 0.03
 
-        def f(lt: float) -> float:
-            c, fx = self.creep_amp(eff, math.exp(lt), c0)
-            amps[lt] = c
-            return fx
+        def chain(lt: float) -> Effects:
+            return dict(eff, creep={"taus_s": [float(math.exp(lt))], "amplitudes": [amps[lt]], "normalized": True})
 
-        lo = math.log(bt.lo)
-        pts = sorted({min(max(x, lo), hi) for x in lt_pts})
-        lt, fx = _parabolic_search(f, pts, lo, hi, refine=refine, expand=3)
-        e = dict(eff, creep={"taus_s": [float(math.exp(lt))], "amplitudes": [amps[lt]], "normalized": True})
-        return e, fx
+        n = max(3, int(math.ceil(CREEP_PER_DECADE * math.log10(bt.hi / bt.lo))) + 1)
+        grid = [float(x) for x in np.log(np.geomspace(bt.lo, bt.hi, n))]
+        fits = self.trials.map(lambda lt: slow.creep_amp(eff, math.exp(lt), refine=1), grid)
+        for lt, (c, fx) in zip(grid, fits):
+            amps[lt] = c if fx < j0 else 0.0
+        if not any(amps.values()):
+            lt = grid[int(np.argmin([fx for _, fx in fits]))]
+            return dict(eff, creep={"taus_s": [float(math.exp(lt))], "amplitudes": [1e-4], "normalized": True})
+        none = held(eff)  # (a time constant that does not fit the training record scores as no creep)
 
-    def creep_init(self, eff: Effects) -> tuple[float, float]:
-        """Creep (one element): a grid over the time constant (its range: 5 ms to 3x the record), the
-        amplitude refitted at each, then parabolic steps around the best. Where the record
-        cannot tell time constants apart (the error equal to 2e-4 of it), the smallest
-        amplitude is taken: a long element with a large amplitude fits the record as well
-        and compresses every other one."""
-        bt = self.ranges["creep"]["tau"]
-        taus = [float(x) for x in np.geomspace(bt.lo, bt.hi, 8)]
-        fits = self.trials.map(lambda tau: self.creep_amp(eff, tau, refine=1), taus)
-        trials = [(fx, c, tau) for tau, (c, fx) in zip(taus, fits)]
-        best = min(trials)[0]
-        fx, c, tau = min((t for t in trials if t[0] <= best * (1 + 2e-4)), key=lambda t: t[1])
-        step = math.log(trials[1][2] / trials[0][2]) / 2
-        e, _ = self.line_creep(dict(eff, creep={"taus_s": [tau], "amplitudes": [c], "normalized": True}),
-                               [math.log(tau) - step, math.log(tau), math.log(tau) + step])
-        return float(e["creep"]["taus_s"][0]), max(float(e["creep"]["amplitudes"][0]), 1e-4)
+        def score(lt: float) -> float:
+            if lt not in amps:
+                c, fx = slow.creep_amp(eff, math.exp(lt), refine=1)
+                amps[lt] = c if fx < j0 else 0.0
+            return held(chain(lt)) if amps[lt] > 0 else none
+
+        known = dict(zip(grid, self.trials.map(score, grid)))
+        lt, _ = _parabolic_search(score, [], grid[0], grid[-1], refine=2, expand=0, known=known)
+        return chain(lt) if amps[lt] > 0 else dict(eff, creep={"taus_s": [float(math.exp(lt))],
+                                                               "amplitudes": [1e-4], "normalized": True})
 
     def mode_band(self, eff: Effects, h: Optional[NDArray[np.float64]]) -> Effects:
         """A lightly damped mode: frequency and damping fitted on the error in a band

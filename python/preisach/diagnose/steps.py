@@ -340,12 +340,19 @@ def fit_round(run: Run, found: Found, fl: Floors, todo: list[str], rnd: int) -> 
     fitter, trials = run.fitter, run.trials
     j_cur = fitter.J(found.cur.effects)
 
+    plain: dict[str, tuple[float, np.ndarray]] = {}
+
     def one(c: str, base: Effects = found.cur.effects) -> tuple[str, FitState, float, np.ndarray, float, float]:
         t0 = time.perf_counter()
+        held = Held(run, fitter)
         with trials.search():
-            eff = REGISTRY[c].fit(fitter, base)
+            eff = REGISTRY[c].fit(fitter, base, held=held)
             st = fitter.state(eff)
         sc, parts = run.score_parts(st)
+        if held.seen:
+            # The search chose on the holdouts: judged by the chains chosen on the other halves.
+            plain[c] = (sc, parts)
+            sc, parts = held.cross_fitted()
         return c, st, sc, parts, fitter.J(eff), time.perf_counter() - t0
 
     todo = sorted(todo, key=lambda c: SLOW_FIRST.index(c) if c in SLOW_FIRST else len(SLOW_FIRST))
@@ -362,7 +369,42 @@ def fit_round(run: Run, found: Found, fl: Floors, todo: list[str], rnd: int) -> 
         found.tried[c] = {"state": st, "rmse_after": sc, "rmse_current": found.score,
                           "score": gain(found.score, sc), "round": rnd + 1,
                           "train_gain": (j_cur - jc) / max(j_cur - fl.noise_fit, 1e-300)}
+        if c in plain:
+            found.tried[c]["plain"] = plain[c]
     return results
+
+
+class Held:
+    """A chain's holdout RMSE, for a search that chooses among chains on the holdouts
+    (creep's time constant); it remembers every chain's parts (each half of each holdout)
+    so that the choice is judged cross-fitted: each half scored by the chain chosen on the
+    other halves."""
+
+    def __init__(self, run: Run, fitter: Fitter) -> None:
+        self.run, self.fitter = run, fitter
+        self.seen: list[np.ndarray] = []
+        n = [(len(range(*a.indices(h.y.size))), len(range(*b.indices(h.y.size))))
+             for h, (a, b) in zip(run.hos, run.halves)]
+        self.sizes = np.array([k for pair in n for k in pair], dtype=np.float64)
+
+    def __call__(self, eff: Effects) -> float:
+        sc, parts = self.run.score_parts(self.fitter.state(eff))
+        self.seen.append(parts)
+        return sc
+
+    def _rmse(self, parts: np.ndarray, sel: slice) -> float:
+        w = self.sizes[sel]
+        return float(np.sqrt(np.sum(w * parts[sel] ** 2) / np.sum(w)))
+
+    def cross_fitted(self) -> tuple[float, np.ndarray]:
+        """The holdout RMSE and parts when the first halves are scored by the chain that
+        scored best on the second halves, and the other way round."""
+        seen = np.array(self.seen)
+        on_first = int(np.argmin([self._rmse(p, slice(0, None, 2)) for p in seen]))
+        on_second = int(np.argmin([self._rmse(p, slice(1, None, 2)) for p in seen]))
+        parts = seen[on_first].copy()
+        parts[0::2] = seen[on_second][0::2]
+        return self._rmse(parts, slice(None)), parts
 
 
 def refusal(run: Run, found: Found, fl: Floors, c: str, res: Result, rnd: int) -> Optional[str]:
@@ -418,6 +460,10 @@ def accept(run: Run, found: Found, fl: Floors, results: dict[str, Result], rnd: 
     best = min(passing)[2]
     found.accepted.append(best)
     found.move(*results[best][:3])
+    if "plain" in found.tried[best]:
+        # Judged cross-fitted; the chain goes on with its own score (what later
+        # candidates, added to it, are scored like).
+        found.score, found.parts = found.tried[best]["plain"]
     accept_pairs(run, found, fl, best)
     run.say(f"round {rnd + 1}: accepted {best}: holdout RMSE {found.score:.4g}")
     return best
