@@ -108,6 +108,17 @@ class Run:
                 e[hv[k]] = (cal.predict(h) - h.y)[hv[k]]
         return self.rest_removed(st, errs)
 
+    def other_records_errors(self, st: FitState) -> Errors:
+        """Errors on each holdout with the chain's slow effects calibrated on the other
+        records only (the training record and the other holdouts, whole): what a trend
+        through absolute time predicts for a record it never saw."""
+        outputs: dict[int, np.ndarray] = {}
+        errs = []
+        for h in self.hos:
+            others = [(r, slice(None)) for r in self.recs if r is not h]
+            errs.append(calibrate_slow(st, others, outputs).predict(h) - h.y)
+        return self.rest_removed(st, errs)
+
     def rest_removed(self, st: FitState, errs: Errors) -> Errors:
         """A holdout that starts with a step from rest: the chain's transient removed
         (``preisach.diagnose.rest``)."""
@@ -363,7 +374,33 @@ def fit_round(run: Run, found: Found, fl: Floors, todo: list[str], rnd: int) -> 
     return results
 
 
-def refusal(run: Run, found: Found, fl: Floors, c: str, res: Result, rnd: int) -> Optional[str]:
+def passes(run: Run, fl: Floors, before: float, after: float) -> bool:
+    """The rule every candidate's gain meets: ``after`` shrinks ``before`` by
+    ``min_shrink`` and by more than half the floor (noise or repeatability)."""
+    return gain(before, after) >= run.min_shrink and before - after >= 0.5 * fl.accept
+
+
+def held_out_evidence(run: Run, found: Found, fl: Floors, c: str, st: FitState, sc: float,
+                      timing: Optional[float]) -> Optional[str]:
+    """Why candidate ``c`` fails the held-out evidence of its kind (``registry``), or
+    None: a trend across records (``across_records``) must shrink each holdout's error
+    when calibrated on the other records only; an effect that acts as a lag
+    (``beats_timing``) must beat the chain with the record's timing in its place
+    (``timing``: the holdout RMSE of the round's delay when that is no longer than two
+    samples)."""
+    e = REGISTRY[c]
+    if e.across_records:
+        sc_o = rmse(np.concatenate(run.other_records_errors(st)))
+        run.say(f"{c} calibrated on the other records: holdout RMSE {sc_o:.4g} (without: {found.score:.4g})")
+        if not passes(run, fl, found.score, sc_o):
+            return "no gain on a record it was not calibrated on (the other records' trend)"
+    if e.beats_timing and timing is not None and not passes(run, fl, timing, sc):
+        return f"no better than the record's timing (a delay of at most two samples: holdout RMSE {timing:.4g})"
+    return None
+
+
+def refusal(run: Run, found: Found, fl: Floors, c: str, res: Result, rnd: int,
+            timing: Optional[float] = None) -> Optional[str]:
     """Why candidate ``c`` (its chain fitted in round ``rnd``) is not accepted, or None."""
     st, sc, parts, _ = res
     g = gain(found.score, sc)
@@ -385,7 +422,16 @@ def refusal(run: Run, found: Found, fl: Floors, c: str, res: Result, rnd: int) -
         return "at its search bound: " + "; ".join(ends_at_bound(c, st.effects[c], run.fitter.ranges))
     if c == "lowpass" and lag.is_timing(run.score, st, sc, run.min_shrink, fl.accept, fl.scale.min_delay):
         return lag.TIMING
-    return None
+    return held_out_evidence(run, found, fl, c, st, sc, timing)
+
+
+def _timing(results: dict[str, Result], fl: Floors) -> Optional[float]:
+    """The holdout RMSE of the round's delay when it is the record's timing (no longer
+    than two samples), else None."""
+    if "delay" not in results:
+        return None
+    st, sc = results["delay"][0], results["delay"][1]
+    return sc if trivial("delay", st.effects["delay"], fl.scale) else None
 
 
 def accept(run: Run, found: Found, fl: Floors, results: dict[str, Result], rnd: int) -> Optional[str]:
@@ -405,7 +451,7 @@ def accept(run: Run, found: Found, fl: Floors, results: dict[str, Result], rnd: 
         strong = found.tried[c]["train_gain"] >= 0.5
         if g < run.min_shrink and not (strong and g >= 0.25 * run.min_shrink):
             continue
-        why = refusal(run, found, fl, c, results[c], rnd)
+        why = refusal(run, found, fl, c, results[c], rnd, _timing(results, fl))
         if why is None:
             passing.append((not strong, sc, c))
         else:
