@@ -8,7 +8,7 @@ is recalibrated across records, whether it may be fitted on the holdouts
 (``trivial``: parameters too small or too large to be one) beyond the rule every effect
 meets (it shrinks the holdout error of its chain, beats a finer hysteresis alone and the
 repeatability floor, and no parameter ends at a search bound), and where it applies the
-held-out evidence of its kind (``across_records``, ``beats_timing``).
+held-out evidence of its kind (``across_records``, ``beats_delay``).
 """
 from __future__ import annotations
 
@@ -53,9 +53,9 @@ class Effect:
     ``across_records`` (its parameters hold on a record they were not calibrated on:
     drift's trend runs on in absolute time, so calibrated on the other records it still
     shrinks each holdout's error; a record's own error, the model's on its input, does
-    not carry over), ``beats_timing`` (at the records' frequencies it acts as a lag, so
-    it must beat the record's timing: the chain with a delay of at most two samples in
-    its place)."""
+    not carry over), ``beats_delay`` (at the records' frequencies it acts as a lag, so
+    its chain must beat the same chain with a delay in its place: the record's timing or
+    a real delay)."""
 
     name: str
     block: str
@@ -67,7 +67,7 @@ class Effect:
     cross_fit: str = "halves"
     agree: tuple[str, float] = ("", 0.0)
     across_records: bool = False
-    beats_timing: bool = False
+    beats_delay: bool = False
 
     def ranges(self, ranges: Ranges) -> dict[str, Bound]:
         """This effect's search ranges (from the data)."""
@@ -133,8 +133,8 @@ REGISTRY: dict[str, Effect] = {e.name: e for e in (
            "calibrated on the other records it shrinks each holdout's error", _drift, slow=True, cross_fit="",
            across_records=True),
     Effect("rate", "rate", ("tau_s",), "Fitter.add: a grid of time constants, the gain solved with the masses",
-           "a rate branch of 0.2 % of the output's span or more; it beats the record's timing", _rate,
-           agree=("tau_s", 1.0), beats_timing=True),
+           "a rate branch of 0.2 % of the output's span or more; it beats a delay in its place", _rate,
+           agree=("tau_s", 1.0), beats_delay=True),
 )}
 
 #: The order the candidates' fits start in: the slowest first (a mode's fit is the

@@ -381,26 +381,25 @@ def passes(run: Run, fl: Floors, before: float, after: float) -> bool:
 
 
 def held_out_evidence(run: Run, found: Found, fl: Floors, c: str, st: FitState, sc: float,
-                      timing: Optional[float]) -> Optional[str]:
+                      rival: Optional[float]) -> Optional[str]:
     """Why candidate ``c`` fails the held-out evidence of its kind (``registry``), or
     None: a trend across records (``across_records``) must shrink each holdout's error
     when calibrated on the other records only; an effect that acts as a lag
-    (``beats_timing``) must beat the chain with the record's timing in its place
-    (``timing``: the holdout RMSE of the round's delay when that is no longer than two
-    samples)."""
+    (``beats_delay``) must beat the chain with a delay in its place by the candidates'
+    rule (``rival``: the holdout RMSE of the round's delay)."""
     e = REGISTRY[c]
     if e.across_records:
         sc_o = rmse(np.concatenate(run.other_records_errors(st)))
         run.say(f"{c} calibrated on the other records: holdout RMSE {sc_o:.4g} (without: {found.score:.4g})")
         if not passes(run, fl, found.score, sc_o):
             return "no gain on a record it was not calibrated on (the other records' trend)"
-    if e.beats_timing and timing is not None and not passes(run, fl, timing, sc):
-        return f"no better than the record's timing (a delay of at most two samples: holdout RMSE {timing:.4g})"
+    if e.beats_delay and rival is not None and not passes(run, fl, rival, sc):
+        return f"no better than a delay in its place (holdout RMSE {rival:.4g})"
     return None
 
 
 def refusal(run: Run, found: Found, fl: Floors, c: str, res: Result, rnd: int,
-            timing: Optional[float] = None) -> Optional[str]:
+            rival: Optional[float] = None) -> Optional[str]:
     """Why candidate ``c`` (its chain fitted in round ``rnd``) is not accepted, or None."""
     st, sc, parts, _ = res
     g = gain(found.score, sc)
@@ -422,16 +421,7 @@ def refusal(run: Run, found: Found, fl: Floors, c: str, res: Result, rnd: int,
         return "at its search bound: " + "; ".join(ends_at_bound(c, st.effects[c], run.fitter.ranges))
     if c == "lowpass" and lag.is_timing(run.score, st, sc, run.min_shrink, fl.accept, fl.scale.min_delay):
         return lag.TIMING
-    return held_out_evidence(run, found, fl, c, st, sc, timing)
-
-
-def _timing(results: dict[str, Result], fl: Floors) -> Optional[float]:
-    """The holdout RMSE of the round's delay when it is the record's timing (no longer
-    than two samples), else None."""
-    if "delay" not in results:
-        return None
-    st, sc = results["delay"][0], results["delay"][1]
-    return sc if trivial("delay", st.effects["delay"], fl.scale) else None
+    return held_out_evidence(run, found, fl, c, st, sc, rival)
 
 
 def accept(run: Run, found: Found, fl: Floors, results: dict[str, Result], rnd: int) -> Optional[str]:
@@ -451,7 +441,7 @@ def accept(run: Run, found: Found, fl: Floors, results: dict[str, Result], rnd: 
         strong = found.tried[c]["train_gain"] >= 0.5
         if g < run.min_shrink and not (strong and g >= 0.25 * run.min_shrink):
             continue
-        why = refusal(run, found, fl, c, results[c], rnd, _timing(results, fl))
+        why = refusal(run, found, fl, c, results[c], rnd, results["delay"][1] if "delay" in results else None)
         if why is None:
             passing.append((not strong, sc, c))
         else:
@@ -497,9 +487,34 @@ def _drop_if_as_good(run: Run, found: Found, x: str, st2: FitState, best: str, p
         found.move(st2, sc2, parts2)
 
 
+def record_timing(run: Run, found: Found, fl: Floors) -> None:
+    """The record's timing in the chain the search starts from: a capture lags its
+    command by a sample or two (the ADC's latency, the DAC's hold, an anti-aliasing
+    filter), which on steps is most of the hysteresis' holdout error and which any
+    effect that acts as a lag would otherwise take (rate, creep, drift). A delay fitted
+    on the training record that is no longer than two samples (no effect: the sampling's
+    own timing, ``augmented.timing_s``) is kept when it lowers the holdout RMSE; every
+    candidate is then judged against the chain with it."""
+    if ("delay" not in run.candidates or "delay" in found.cur.effects or run.base.kept is not None
+            or found.score <= 1.2 * fl.accept):
+        return
+    with warnings.catch_warnings(), run.trials.search():
+        warnings.simplefilter("ignore", PreisachWarning)
+        eff = REGISTRY["delay"].fit(run.fitter, found.cur.effects)
+        if eff["delay"]["delay_s"] <= 0 or not trivial("delay", eff["delay"], fl.scale):
+            return
+        st = run.fitter.state(eff)
+    sc, parts = run.score_parts(st)
+    run.say(f"the record's timing ({1e3 * eff['delay']['delay_s']:.3g} ms): holdout RMSE {sc:.4g} "
+            f"(without: {found.score:.4g}){'' if sc < found.score else '; not kept'}")
+    if sc < found.score:
+        found.move(st, sc, parts)
+
+
 def search(run: Run, found: Found, fl: Floors) -> None:
-    """Stepwise selection scored on the holdouts: up to three rounds of fit, accept,
-    eliminate."""
+    """Stepwise selection scored on the holdouts, from the chain with the record's
+    timing: up to three rounds of fit, accept, eliminate."""
+    record_timing(run, found, fl)
     dyn = [c for c in run.candidates if c in CANDIDATES and c not in run.base.effects]
     for rnd in range(3):
         if found.score <= 1.2 * fl.accept:
