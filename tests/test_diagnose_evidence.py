@@ -80,7 +80,8 @@ def test_no_drift_or_rate_false_alarm_on_the_rig(name, seed):
     rep = diagnose(tr, hos, progress=False)
     assert not _found(rep) & FALSE_ALARMS, [(e["name"], e["refused"]) for e in rep.effects]
     if name == "none":
-        assert rep.dominant_effect == "none"
+        # Nothing the stage adds to its hysteresis (a finer grid is the model's own matter).
+        assert _found(rep) <= {"discretization"}, [(e["name"], e["refused"]) for e in rep.effects]
 
 
 def _stage_records(seed, blocks, fs=20e3, noise=0.003):

@@ -24,7 +24,7 @@ from preisach.chain import Chain, load
 from preisach.diagnose import crossfit as cf
 from preisach.diagnose import kept, lag, rest, sessions
 from preisach.diagnose.crossfit import consistent, holdout_delay
-from preisach.diagnose.effects import CANDIDATES, FitState, Record, rmse
+from preisach.diagnose.effects import CANDIDATES, FitState, Record, _grid_then_parabola, rmse
 from preisach.diagnose.initial import concentrated, estimate, fitted_part, predict_from
 from preisach.diagnose.ranges import ends_at_bound
 from preisach.diagnose.records import RecordLike, check_distinct, holdout_list, load_record, reversals
@@ -493,16 +493,20 @@ def record_timing(run: Run, found: Found, fl: Floors) -> None:
     filter), which on steps is most of the hysteresis' holdout error and which any
     effect that acts as a lag would otherwise take (rate, creep, drift). A delay fitted
     on the training record that is no longer than two samples (no effect: the sampling's
-    own timing, ``augmented.timing_s``) is kept when it lowers the holdout RMSE; every
+    own timing, ``augmented.timing_s``; searched up to just below two samples: a longer
+    lag is the candidates' to explain) is kept when it lowers the holdout RMSE; every
     candidate is then judged against the chain with it."""
     if ("delay" not in run.candidates or "delay" in found.cur.effects or run.base.kept is not None
             or found.score <= 1.2 * fl.accept):
         return
     with warnings.catch_warnings(), run.trials.search():
         warnings.simplefilter("ignore", PreisachWarning)
-        eff = REGISTRY["delay"].fit(run.fitter, found.cur.effects)
-        if eff["delay"]["delay_s"] <= 0 or not trivial("delay", eff["delay"], fl.scale):
+        cur = found.cur.effects
+        f, fm = run.fitter.along(lambda d: dict(cur, delay={"delay_s": d}))
+        d, _ = _grid_then_parabola(f, np.linspace(0.0, np.nextafter(fl.scale.min_delay, 0.0), 9), fmany=fm)
+        if d <= 0:
             return
+        eff = dict(cur, delay={"delay_s": float(d)})
         st = run.fitter.state(eff)
     sc, parts = run.score_parts(st)
     run.say(f"the record's timing ({1e3 * eff['delay']['delay_s']:.3g} ms): holdout RMSE {sc:.4g} "
