@@ -626,8 +626,14 @@ def _halves_refusal(run: Run, found: Found, fl: Floors, c: str, xf: dict[str, An
     if c == "lowpass":
         # The record's timing, as in the search: a fold's chain against its delay equivalent.
         st = xf["folds"][0]["_state"]
-        if lag.is_timing(run.score, st, run.score(st), run.min_shrink, fl.accept, fl.scale.min_delay):
+        sc_st = run.score(st)
+        if lag.is_timing(run.score, st, sc_st, run.min_shrink, fl.accept, fl.scale.min_delay):
             return lag.TIMING
+        # A delay only the holdouts carry is fitted after these effects: a low-pass must
+        # beat a delay of its lag there (the same masses) by the candidates' rule.
+        sc_d = run.score(FitState(st.model, lag.delay_equivalent(st.effects), st.train_rmse))
+        if not passes(run, fl, sc_d, sc_st):
+            return f"no better than a delay of its lag (holdout RMSE {sc_d:.4g})"
     return None
 
 
