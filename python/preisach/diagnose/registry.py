@@ -7,7 +7,8 @@ is recalibrated across records, whether it may be fitted on the holdouts
 (cross-fitting), and its evidence: what makes a fit of it a real effect of that kind
 (``trivial``: parameters too small or too large to be one) beyond the rule every effect
 meets (it shrinks the holdout error of its chain, beats a finer hysteresis alone and the
-repeatability floor, and no parameter ends at a search bound).
+repeatability floor, and no parameter ends at a search bound), and where it applies the
+held-out evidence of its kind (``across_records``, ``beats_delay``).
 """
 from __future__ import annotations
 
@@ -48,7 +49,13 @@ class Effect:
     show it: ``"halves"``, its search on half of a holdout, scored on the other halves;
     ``"added"``, only the delay added to the chain found; ``""``, not: a slow effect is
     calibrated across records anyway), ``agree`` (the folds of a cross-fit agree when
-    ``agree[0]`` differs between them by at most the fraction ``agree[1]``)."""
+    ``agree[0]`` differs between them by at most the fraction ``agree[1]``),
+    ``across_records`` (its parameters hold on a record they were not calibrated on:
+    drift's trend runs on in absolute time, so calibrated on the other records it still
+    shrinks each holdout's error; a record's own error, the model's on its input, does
+    not carry over), ``beats_delay`` (at the records' frequencies it acts as a lag, so
+    its chain must beat the same chain with a delay in its place: the record's timing or
+    a real delay)."""
 
     name: str
     block: str
@@ -59,6 +66,8 @@ class Effect:
     slow: bool = False
     cross_fit: str = "halves"
     agree: tuple[str, float] = ("", 0.0)
+    across_records: bool = False
+    beats_delay: bool = False
 
     def ranges(self, ranges: Ranges) -> dict[str, Bound]:
         """This effect's search ranges (from the data)."""
@@ -124,11 +133,12 @@ REGISTRY: dict[str, Effect] = {e.name: e for e in (
            "amplitudes summing to 0.3 % or more, a time constant of 5 ms or more", _creep, slow=True,
            cross_fit=""),
     Effect("drift", "drift", ("gain_per_s",), "Fitter.add: a grid of gains on the slow fitter, the offset "
-           "slope solved with the masses", "moves the output by more than 3 noise floors over the records",
-           _drift, slow=True, cross_fit=""),
+           "slope solved with the masses", "moves the output by more than 3 noise floors over the records; "
+           "calibrated on the other records it shrinks each holdout's error", _drift, slow=True, cross_fit="",
+           across_records=True),
     Effect("rate", "rate", ("tau_s",), "Fitter.add: a grid of time constants, the gain solved with the masses",
-           "a rate branch of 0.2 % of the output's span or more", _rate,
-           agree=("tau_s", 1.0)),
+           "a rate branch of 0.2 % of the output's span or more; it beats a delay in its place", _rate,
+           agree=("tau_s", 1.0), beats_delay=True),
 )}
 
 #: The order the candidates' fits start in: the slowest first (a mode's fit is the

@@ -38,6 +38,7 @@ from preisach.diagnose.effects import (
     rate_branch,
     rmse,
 )
+from preisach.diagnose.identified import identified
 from preisach.diagnose.ranges import CREEP_AMP_MAX, CREEP_TAU_MIN, Ranges, delay_grid, search_ranges
 from preisach.diagnose.rest import fast_blocks, start_mode, transient
 from preisach.model import PreisachModel
@@ -370,15 +371,16 @@ class Fitter:
         return self._linear(eff, self._memo[_key(eff)][1])
 
     def state(self, eff: Effects, n_h: Optional[int] = None) -> FitState:
-        """The chain with masses >= 0 (exact NNLS projection) and its linear
-        coefficients refitted with them."""
+        """The chain with masses >= 0 (exact NNLS projection; the masses the record does
+        not identify zero, ``preisach.diagnose.identified``) and its linear coefficients
+        refitted with them."""
         if n_h is not None and n_h != self.n_h:
             other = Fitter(self.rec, n_h, self.u_range, self.stride, self.tol, self.trials, self.ranges)
             other.rest = self.rest
             return other.state(eff)
         pb = self._problem(eff)
         res = self._solve(pb, nnls=True)
-        model = PreisachModel._wrap(res["model"], "interpolated")
+        model = identified(PreisachModel._wrap(res["model"], "interpolated"), self._u)
         e = self._linear(eff, res["extra_nnls"])
         st = FitState(model, e)
         st.train_rmse = rmse(self.predict(st) - self.y)

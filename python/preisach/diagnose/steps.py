@@ -24,7 +24,7 @@ from preisach.chain import Chain, load
 from preisach.diagnose import crossfit as cf
 from preisach.diagnose import kept, lag, rest, sessions
 from preisach.diagnose.crossfit import consistent, holdout_delay
-from preisach.diagnose.effects import CANDIDATES, FitState, Record, rmse
+from preisach.diagnose.effects import CANDIDATES, FitState, Record, _grid_then_parabola, rmse
 from preisach.diagnose.initial import estimate, own_start
 from preisach.diagnose.ranges import ends_at_bound
 from preisach.diagnose.records import RecordLike, check_distinct, holdout_list, load_record, reversals
@@ -106,6 +106,17 @@ class Run:
                                  outputs)
             for e, h, hv in zip(errs, self.hos, halves):
                 e[hv[k]] = (cal.predict(h) - h.y)[hv[k]]
+        return self.rest_removed(st, errs)
+
+    def other_records_errors(self, st: FitState) -> Errors:
+        """Errors on each holdout with the chain's slow effects calibrated on the other
+        records only (the training record and the other holdouts, whole): what a trend
+        through absolute time predicts for a record it never saw."""
+        outputs: dict[int, np.ndarray] = {}
+        errs = []
+        for h in self.hos:
+            others = [(r, slice(None)) for r in self.recs if r is not h]
+            errs.append(calibrate_slow(st, others, outputs).predict(h) - h.y)
         return self.rest_removed(st, errs)
 
     def rest_removed(self, st: FitState, errs: Errors) -> Errors:
@@ -407,7 +418,32 @@ class Held:
         return self._rmse(parts, slice(None)), parts
 
 
-def refusal(run: Run, found: Found, fl: Floors, c: str, res: Result, rnd: int) -> Optional[str]:
+def passes(run: Run, fl: Floors, before: float, after: float) -> bool:
+    """The rule every candidate's gain meets: ``after`` shrinks ``before`` by
+    ``min_shrink`` and by more than half the floor (noise or repeatability)."""
+    return gain(before, after) >= run.min_shrink and before - after >= 0.5 * fl.accept
+
+
+def held_out_evidence(run: Run, found: Found, fl: Floors, c: str, st: FitState, sc: float,
+                      rival: Optional[float]) -> Optional[str]:
+    """Why candidate ``c`` fails the held-out evidence of its kind (``registry``), or
+    None: a trend across records (``across_records``) must shrink each holdout's error
+    when calibrated on the other records only; an effect that acts as a lag
+    (``beats_delay``) must beat the chain with a delay in its place by the candidates'
+    rule (``rival``: the holdout RMSE of the round's delay)."""
+    e = REGISTRY[c]
+    if e.across_records:
+        sc_o = rmse(np.concatenate(run.other_records_errors(st)))
+        run.say(f"{c} calibrated on the other records: holdout RMSE {sc_o:.4g} (without: {found.score:.4g})")
+        if not passes(run, fl, found.score, sc_o):
+            return "no gain on a record it was not calibrated on (the other records' trend)"
+    if e.beats_delay and rival is not None and not passes(run, fl, rival, sc):
+        return f"no better than a delay in its place (holdout RMSE {rival:.4g})"
+    return None
+
+
+def refusal(run: Run, found: Found, fl: Floors, c: str, res: Result, rnd: int,
+            rival: Optional[float] = None) -> Optional[str]:
     """Why candidate ``c`` (its chain fitted in round ``rnd``) is not accepted, or None."""
     st, sc, parts, _ = res
     g = gain(found.score, sc)
@@ -429,7 +465,7 @@ def refusal(run: Run, found: Found, fl: Floors, c: str, res: Result, rnd: int) -
         return "at its search bound: " + "; ".join(ends_at_bound(c, st.effects[c], run.fitter.ranges))
     if c == "lowpass" and lag.is_timing(run.score, st, sc, run.min_shrink, fl.accept, fl.scale.min_delay):
         return lag.TIMING
-    return None
+    return held_out_evidence(run, found, fl, c, st, sc, rival)
 
 
 def accept(run: Run, found: Found, fl: Floors, results: dict[str, Result], rnd: int) -> Optional[str]:
@@ -449,7 +485,7 @@ def accept(run: Run, found: Found, fl: Floors, results: dict[str, Result], rnd: 
         strong = found.tried[c]["train_gain"] >= 0.5
         if g < run.min_shrink and not (strong and g >= 0.25 * run.min_shrink):
             continue
-        why = refusal(run, found, fl, c, results[c], rnd)
+        why = refusal(run, found, fl, c, results[c], rnd, results["delay"][1] if "delay" in results else None)
         if why is None:
             passing.append((not strong, sc, c))
         else:
@@ -509,9 +545,38 @@ def _drop_if_as_good(run: Run, found: Found, x: str, st2: FitState, best: str, p
         found.move(st2, sc2, parts2)
 
 
+def record_timing(run: Run, found: Found, fl: Floors) -> None:
+    """The record's timing in the chain the search starts from: a capture lags its
+    command by a sample or two (the ADC's latency, the DAC's hold, an anti-aliasing
+    filter), which on steps is most of the hysteresis' holdout error and which any
+    effect that acts as a lag would otherwise take (rate, creep, drift). A delay fitted
+    on the training record that is no longer than two samples (no effect: the sampling's
+    own timing, ``augmented.timing_s``; searched up to just below two samples: a longer
+    lag is the candidates' to explain) is kept when it lowers the holdout RMSE; every
+    candidate is then judged against the chain with it."""
+    if ("delay" not in run.candidates or "delay" in found.cur.effects or run.base.kept is not None
+            or found.score <= 1.2 * fl.accept):
+        return
+    with warnings.catch_warnings(), run.trials.search():
+        warnings.simplefilter("ignore", PreisachWarning)
+        cur = found.cur.effects
+        f, fm = run.fitter.along(lambda d: dict(cur, delay={"delay_s": d}))
+        d, _ = _grid_then_parabola(f, np.linspace(0.0, np.nextafter(fl.scale.min_delay, 0.0), 9), fmany=fm)
+        if d <= 0:
+            return
+        eff = dict(cur, delay={"delay_s": float(d)})
+        st = run.fitter.state(eff)
+    sc, parts = run.score_parts(st)
+    run.say(f"the record's timing ({1e3 * eff['delay']['delay_s']:.3g} ms): holdout RMSE {sc:.4g} "
+            f"(without: {found.score:.4g}){'' if sc < found.score else '; not kept'}")
+    if sc < found.score:
+        found.move(st, sc, parts)
+
+
 def search(run: Run, found: Found, fl: Floors) -> None:
-    """Stepwise selection scored on the holdouts: up to three rounds of fit, accept,
-    eliminate."""
+    """Stepwise selection scored on the holdouts, from the chain with the record's
+    timing: up to three rounds of fit, accept, eliminate."""
+    record_timing(run, found, fl)
     dyn = [c for c in run.candidates if c in CANDIDATES and c not in run.base.effects]
     for rnd in range(3):
         if found.score <= 1.2 * fl.accept:
@@ -619,8 +684,14 @@ def _halves_refusal(run: Run, found: Found, fl: Floors, c: str, xf: dict[str, An
     if c == "lowpass":
         # The record's timing, as in the search: a fold's chain against its delay equivalent.
         st = xf["folds"][0]["_state"]
-        if lag.is_timing(run.score, st, run.score(st), run.min_shrink, fl.accept, fl.scale.min_delay):
+        sc_st = run.score(st)
+        if lag.is_timing(run.score, st, sc_st, run.min_shrink, fl.accept, fl.scale.min_delay):
             return lag.TIMING
+        # A delay only the holdouts carry is fitted after these effects: a low-pass must
+        # beat a delay of its lag there (the same masses) by the candidates' rule.
+        sc_d = run.score(FitState(st.model, lag.delay_equivalent(st.effects), st.train_rmse))
+        if not passes(run, fl, sc_d, sc_st):
+            return f"no better than a delay of its lag (holdout RMSE {sc_d:.4g})"
     return None
 
 
