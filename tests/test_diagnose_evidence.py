@@ -12,12 +12,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scipy import signal
-
 from preisach import PreisachModel
 from preisach.diagnose import diagnose
 from preisach.diagnose.identified import identified, unidentified
-from preisach.sim import Stage, hysteresis_block
+from scipy import signal
+from stage_records import stage_records
 
 FALSE_ALARMS = {"drift", "rate"}
 
@@ -84,22 +83,8 @@ def test_no_drift_or_rate_false_alarm_on_the_rig(name, seed):
         assert _found(rep) <= {"discretization"}, [(e["name"], e["refused"]) for e in rep.effects]
 
 
-def _stage_records(seed, blocks, fs=20e3, noise=0.003):
-    """The project's simulator: a random hysteresis then ``blocks``; a training record and
-    two holdouts (triangle, steps), absolute time running on across them."""
-    rng = np.random.default_rng(seed)
-    stage = Stage([hysteresis_block(bv.true_hysteresis(rng))] + blocks, sample_rate_hz=fs)
-    recs, t0 = [], 0.0
-    for kind in ("train", "triangle", "steps"):
-        u = bv.waveform(kind, fs, 1.5, rng)
-        t = t0 + np.arange(u.size) / fs
-        recs.append({"t": t, "u": u, "y": stage.simulate(t, u) + noise * rng.standard_normal(u.size)})
-        t0 = float(t[-1]) + 0.5
-    return recs
-
-
 def test_no_drift_or_rate_false_alarm_on_the_project_stage():
-    recs = _stage_records(31, [])
+    recs = stage_records(31, [], gap_s=0.5)
     rep = diagnose(recs[0], recs[1:], progress=False)
     assert not _found(rep) & FALSE_ALARMS, [(e["name"], e["refused"]) for e in rep.effects]
 
@@ -143,6 +128,6 @@ def test_a_rate_effect_is_found_on_the_independent_stage():
 def test_a_rate_effect_is_found_on_the_project_stage():
     rng = np.random.default_rng(4303)
     gain_s, tau_s = rng.uniform(2e-4, 4e-4), rng.uniform(1e-3, 3e-3)
-    recs = _stage_records(4303, [{"type": "rate", "gain_s": gain_s, "tau_s": tau_s}])
+    recs = stage_records(4303, [{"type": "rate", "gain_s": gain_s, "tau_s": tau_s}], gap_s=0.5)
     rep = diagnose(recs[0], recs[1:], progress=False)
     assert rep.dominant_effect == "rate", [(e["name"], e["refused"]) for e in rep.effects]

@@ -5,14 +5,12 @@ real low-pass (found) and a small delay (found as a delay), and on the independe
 with nothing but its capture lag (not a low-pass)."""
 import math
 
-import independent_stage as bv
 import numpy as np
 import pytest
-
 from preisach.diagnose import diagnose
 from preisach.diagnose.lag import delay_equivalent
 from preisach.diagnose.search import group_delay
-from preisach.sim import Stage, hysteresis_block
+from stage_records import stage_records
 
 
 def test_the_delay_equivalent_keeps_the_lag():
@@ -24,25 +22,11 @@ def test_the_delay_equivalent_keeps_the_lag():
         group_delay({"cutoff_hz": 500.0, "order": 1}))
 
 
-def _records(seed, blocks, fs=20e3):
-    """The project's simulator: a random hysteresis then ``blocks``; a training record and
-    two holdouts (triangle, steps) from rest at their first input, white noise."""
-    rng = np.random.default_rng(seed)
-    stage = Stage([hysteresis_block(bv.true_hysteresis(rng))] + blocks, sample_rate_hz=fs)
-    recs, t0 = [], 0.0
-    for kind in ("train", "triangle", "steps"):
-        u = bv.waveform(kind, fs, 1.5, rng)
-        t = t0 + np.arange(u.size) / fs
-        recs.append({"t": t, "u": u, "y": stage.simulate(t, u) + 0.003 * rng.standard_normal(u.size)})
-        t0 = float(t[-1]) + 1.0
-    return recs, rng
-
-
 @pytest.mark.parametrize("seed", [3, 4])
 def test_a_real_lowpass_is_found(seed):
     rng = np.random.default_rng(100 + seed)
     lp = {"type": "lowpass", "cutoff_hz": float(rng.uniform(300.0, 1000.0)), "order": int(rng.integers(1, 3))}
-    recs, _ = _records(seed, [lp])
+    recs = stage_records(seed, [lp])
     rep = diagnose(recs[0], recs[1:], progress=False)
     assert rep.dominant_effect == "lowpass", [(e["name"], e["refused"]) for e in rep.effects]
 
@@ -51,7 +35,7 @@ def test_a_small_delay_is_found_as_a_delay():
     """Four samples at 20 kHz: fitted as a delay within 10 %, not as a low-pass."""
     fs = 20e3
     d = 4 / fs
-    recs, _ = _records(5, [{"type": "delay", "delay_s": d}], fs)
+    recs = stage_records(5, [{"type": "delay", "delay_s": d}], fs)
     rep = diagnose(recs[0], recs[1:], progress=False)
     found = {e["name"]: e for e in rep.effects if e["detected"]}
     assert rep.dominant_effect == "delay" and "lowpass" not in found, [(e["name"], e["refused"]) for e in rep.effects]

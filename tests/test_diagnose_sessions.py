@@ -2,13 +2,11 @@
 with a value per record, accepted only on evidence that separates it from unrecorded
 history, creep and a slow wander. On the project's simulator (``preisach.sim.Stage``,
 random parameters) and on the independent rig (``tests/rig.py``)."""
-import independent_stage as bv
 import numpy as np
 import pytest
-
 from preisach.diagnose import diagnose
 from preisach.diagnose.sessions import record_gain, record_offset
-from preisach.sim import Stage, hysteresis_block
+from stage_records import stage_records
 
 
 def test_a_record_offset_needs_a_constant_offset_after_the_sweep():
@@ -26,22 +24,8 @@ def test_a_record_offset_needs_a_constant_offset_after_the_sweep():
     assert record_offset(-0.008 + noise, u, 0.01) is None  # below the floor
 
 
-def _records(seed, blocks, offsets, fs=20e3):
-    """The project's simulator: a random hysteresis then ``blocks``; a training record and
-    two holdouts (triangle, steps), each with its session's sensor offset."""
-    rng = np.random.default_rng(seed)
-    stage = Stage([hysteresis_block(bv.true_hysteresis(rng))] + blocks, sample_rate_hz=fs)
-    recs, t0 = [], 0.0
-    for kind, off in zip(("train", "triangle", "steps"), offsets):
-        u = bv.waveform(kind, fs, 1.5, rng)
-        t = t0 + np.arange(u.size) / fs
-        recs.append({"t": t, "u": u, "y": stage.simulate(t, u) + off + 0.003 * rng.standard_normal(u.size)})
-        t0 = float(t[-1]) + 1.0
-    return recs
-
-
 def test_session_offsets_on_the_project_stage():
-    recs = _records(21, [], (0.0, 0.6, -0.4))
+    recs = stage_records(21, [], offsets=(0.0, 0.6, -0.4))
     rep = diagnose(recs[0], recs[1:], progress=False)
     d = next(e for e in rep.effects if e["name"] == "drift")
     assert rep.dominant_effect == "drift" and d["detected"], [(e["name"], e["refused"]) for e in rep.effects]
@@ -54,7 +38,7 @@ def test_session_offsets_on_the_project_stage():
 
 def test_creep_on_the_project_stage_is_not_sessions():
     """Creep restarts with every record: the offset it leaves is no session's."""
-    recs = _records(22, [{"type": "creep", "gains": [0.05], "time_constants_s": [0.3]}], (0.0, 0.0, 0.0))
+    recs = stage_records(22, [{"type": "creep", "gains": [0.05], "time_constants_s": [0.3]}])
     rep = diagnose(recs[0], recs[1:], progress=False)
     d = next((e for e in rep.effects if e["name"] == "drift"), None)
     assert d is None or "record_offsets" not in d["params"], d
@@ -122,7 +106,7 @@ def test_session_gains_are_found_on_a_record_that_varies_after_its_sweep(source,
     if source == "rig":
         recs = _rig_gain_sessions(seed, gains)
     else:
-        recs = _records(seed, [], (0.0, 0.0, 0.0))
+        recs = stage_records(seed, [])
         for r, g in zip(recs, gains):
             r["y"] = g * r["y"]
     rep = diagnose(recs[0], recs[1:], progress=False)
