@@ -11,7 +11,7 @@ the staircase counts only where that part's error is its own (``concentrated``).
 """
 from __future__ import annotations
 
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 from numpy.typing import NDArray
@@ -63,17 +63,45 @@ def staircases(st: FitState, levels: int = 9) -> list[list[float]]:
 
 def estimate(st: FitState, rec: Record, levels: int = 9) -> tuple[list[float], float, float]:
     """The starting staircase of ``rec`` (``[M, m]``, ``[M]`` or none) that fits the
-    part before the sweep best (``fitted_part``), on a grid of the model's range;
-    returns it with the RMSE of that part before and after."""
+    part before the sweep best (``fitted_part``), on a grid of the model's range, then
+    refined (``refine``); returns it with the RMSE of that part before and after."""
     k = fitted_part(rec)
     part = Record(rec.name, rec.t[:k], rec.u[:k], rec.y[:k], rec.dt)
-    before = rmse(predict_from(st, part, None) - part.y)
+
+    def err(ex: list[float]) -> float:
+        return rmse(predict_from(st, part, ex) - part.y)
+
+    before = err([])
     best: tuple[float, list[float]] = (before, [])
     for ex in staircases(st, levels):
-        e = rmse(predict_from(st, part, ex) - part.y)
+        e = err(ex)
         if e < best[0]:
             best = (e, ex)
-    return best[1], before, best[0]
+    if not best[1]:
+        return [], before, before
+    lo, hi = st.model.u_range
+    ex, after = refine(err, best[1], best[0], (hi - lo) / (levels - 1))
+    return ex, before, after
+
+
+def refine(err: Callable[[list[float]], float], ex: list[float], e: float, step: float,
+           rounds: int = 4) -> tuple[list[float], float]:
+    """The staircase ``ex`` (error ``e``) moved one extremum at a time by half the last
+    ``step`` up or down while ``err`` falls (the order ``m < M`` kept): the grid's
+    resolution halved ``rounds`` times."""
+    for _ in range(rounds):
+        step /= 2
+        for i in range(len(ex)):
+            for s in (-step, step):
+                trial = list(ex)
+                trial[i] += s
+                if len(trial) == 2 and trial[1] >= trial[0]:
+                    continue
+                et = err(trial)
+                if et < e:
+                    ex, e = trial, et
+                    break
+    return ex, e
 
 
 def own_start(st: FitState, rec: Record, err: NDArray[np.float64],
