@@ -86,21 +86,18 @@ def estimate(st: FitState, rec: Record, levels: int = 9) -> tuple[list[float], f
 
 def refine(err: Callable[[list[float]], float], ex: list[float], e: float, step: float,
            rounds: int = 4) -> tuple[list[float], float]:
-    """The staircase ``ex`` (error ``e``) moved one extremum at a time by half the last
-    ``step`` up or down while ``err`` falls (the order ``m < M`` kept): the grid's
-    resolution halved ``rounds`` times."""
+    """The staircase ``ex`` (error ``e``) moved by half the grid's ``step``: the best
+    move of one extremum up or down, while ``err`` falls (at most four moves; the order
+    ``m < M`` kept), then again with the step halved, ``rounds`` times (a pattern
+    search)."""
     for _ in range(rounds):
         step /= 2
-        for i in range(len(ex)):
-            for s in (-step, step):
-                trial = list(ex)
-                trial[i] += s
-                if len(trial) == 2 and trial[1] >= trial[0]:
-                    continue
-                et = err(trial)
-                if et < e:
-                    ex, e = trial, et
-                    break
+        for _move in range(4):
+            trials = [[x + s if j == i else x for j, x in enumerate(ex)] for i in range(len(ex)) for s in (-step, step)]
+            scored = [(err(t), t) for t in trials if len(t) == 1 or t[1] < t[0]]
+            if not scored or min(scored)[0] >= e:
+                break
+            e, ex = min(scored)
     return ex, e
 
 
