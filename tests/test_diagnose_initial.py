@@ -67,8 +67,9 @@ def test_records_after_unrecorded_history_on_the_simulated_stage_have_their_stai
     """The project's simulated stage (``preisach.sim.Stage``), random levels: holdout 1
     rose to ``M1``, fell to ``m1`` and rose to its first sample; holdout 2 rose to ``M2``
     and fell to it; both then sine within part of the range. The staircase is found,
-    dominant, with ``M2`` and ``m1`` near the truth (``M1`` only sets a strip of relays
-    at the range's bottom, whose masses are small: looser)."""
+    dominant, with ``M2`` and ``m1`` within two cells of the model's grid of the truth
+    (``M1`` only sets a strip of relays at the range's bottom, whose masses are small:
+    looser)."""
     from preisach.diagnose import diagnose
     from preisach.sim import Stage
 
@@ -90,5 +91,6 @@ def test_records_after_unrecorded_history_on_the_simulated_stage_have_their_stai
     e = next(e for e in rep.effects if e["name"] == "initial_state")
     ex1, ex2 = e["params"]["record_extrema"]["holdout 1"], e["params"]["record_extrema"]["holdout 2"]
     span = float(np.ptp(rep.baseline_model.u_range))
-    assert len(ex2) == 1 and abs(ex2[0] - big2) < 0.03 * span, (ex2, big2)
-    assert len(ex1) == 2 and abs(ex1[1] - m1) < 0.05 * span and abs(ex1[0] - big1) < 0.2 * span, (ex1, big1, m1)
+    cell = span / rep.baseline["n_h"]  # the model's resolution
+    assert len(ex2) == 1 and abs(ex2[0] - big2) < 2 * cell, (ex2, big2, cell)
+    assert len(ex1) == 2 and abs(ex1[1] - m1) < 2 * cell and abs(ex1[0] - big1) < 0.2 * span, (ex1, big1, m1, cell)
