@@ -81,7 +81,8 @@ def test_records_after_unrecorded_history_on_the_simulated_stage_have_their_stai
     ident = 3.75 - 3.6 * np.linspace(0.05, 1, n) * np.cos(2 * np.pi * rng.uniform(3, 6) * tt)
     t1 = np.arange(int(1.0 * fs)) / fs
     a1, a2 = rng.uniform(1.2, 1.8), rng.uniform(2.0, 3.0)
-    m1, big1, big2 = rng.uniform(0.6, 3.75 - a1 - 0.5), rng.uniform(3.75, 3.75 + 0.8 * a1), rng.uniform(3.75, 3.75 + 0.8 * a2)
+    m1 = rng.uniform(0.6, 3.75 - a1 - 0.5)
+    big1, big2 = rng.uniform(3.75, 3.75 + 0.8 * a1), rng.uniform(3.75, 3.75 + 0.8 * a2)
     recs = [_after_history(stage, fs, ident, 0.0, []),
             _after_history(stage, fs, 3.75 - a1 * np.cos(2 * np.pi * rng.uniform(8, 20) * t1), 3.0, [big1, m1]),
             _after_history(stage, fs, 3.75 - a2 * np.cos(2 * np.pi * rng.uniform(8, 20) * t1), 5.0, [big2])]
