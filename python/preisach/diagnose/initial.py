@@ -4,10 +4,11 @@ A record that starts mid-range after unrecorded excursions does not start with e
 relay at -1: the output carries an offset that fades once the input has swept the range
 (wiping-out erases the history). The starting staircase is estimated per record as
 alternating extrema in input units (the hysteresis block's ``initial_extrema``: the
-input rose to ``M``, fell to ``m``, then went to the first sample), with the chain
-fixed, on the part of the record before the input has swept its range (the only part
-the memory at the start reaches). Two numbers fitted on the samples they are scored on:
-the staircase counts only where that part's error is its own (``concentrated``).
+input rose to ``M``, fell to ``m``, then went to the first sample), on a grid of the
+model's range and refined below it, with the chain fixed, on the part of the record
+before the input has swept its range (the only part the memory at the start reaches).
+Two numbers fitted on the samples they are scored on: the staircase counts only where
+that part's error is its own (``concentrated``).
 """
 from __future__ import annotations
 
