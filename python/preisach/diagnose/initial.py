@@ -4,14 +4,15 @@ A record that starts mid-range after unrecorded excursions does not start with e
 relay at -1: the output carries an offset that fades once the input has swept the range
 (wiping-out erases the history). The starting staircase is estimated per record as
 alternating extrema in input units (the hysteresis block's ``initial_extrema``: the
-input rose to ``M``, fell to ``m``, then went to the first sample), with the chain
-fixed, on the part of the record before the input has swept its range (the only part
-the memory at the start reaches). Two numbers fitted on the samples they are scored on:
-the staircase counts only where that part's error is its own (``concentrated``).
+input rose to ``M``, fell to ``m``, then went to the first sample), on a grid of the
+model's range and refined below it, with the chain fixed, on the part of the record
+before the input has swept its range (the only part the memory at the start reaches).
+Two numbers fitted on the samples they are scored on: the staircase counts only where
+that part's error is its own (``concentrated``).
 """
 from __future__ import annotations
 
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 from numpy.typing import NDArray
@@ -63,17 +64,42 @@ def staircases(st: FitState, levels: int = 9) -> list[list[float]]:
 
 def estimate(st: FitState, rec: Record, levels: int = 9) -> tuple[list[float], float, float]:
     """The starting staircase of ``rec`` (``[M, m]``, ``[M]`` or none) that fits the
-    part before the sweep best (``fitted_part``), on a grid of the model's range;
-    returns it with the RMSE of that part before and after."""
+    part before the sweep best (``fitted_part``), on a grid of the model's range, then
+    refined (``refine``); returns it with the RMSE of that part before and after."""
     k = fitted_part(rec)
     part = Record(rec.name, rec.t[:k], rec.u[:k], rec.y[:k], rec.dt)
-    before = rmse(predict_from(st, part, None) - part.y)
+
+    def err(ex: list[float]) -> float:
+        return rmse(predict_from(st, part, ex) - part.y)
+
+    before = err([])
     best: tuple[float, list[float]] = (before, [])
     for ex in staircases(st, levels):
-        e = rmse(predict_from(st, part, ex) - part.y)
+        e = err(ex)
         if e < best[0]:
             best = (e, ex)
-    return best[1], before, best[0]
+    if not best[1]:
+        return [], before, before
+    lo, hi = st.model.u_range
+    ex, after = refine(err, best[1], best[0], (hi - lo) / (levels - 1))
+    return ex, before, after
+
+
+def refine(err: Callable[[list[float]], float], ex: list[float], e: float, step: float,
+           rounds: int = 4) -> tuple[list[float], float]:
+    """The staircase ``ex`` (error ``e``) moved by half the grid's ``step``: the best
+    move of one extremum up or down, while ``err`` falls (at most four moves; the order
+    ``m < M`` kept), then again with the step halved, ``rounds`` times (a pattern
+    search)."""
+    for _ in range(rounds):
+        step /= 2
+        for _move in range(4):
+            trials = [[x + s if j == i else x for j, x in enumerate(ex)] for i in range(len(ex)) for s in (-step, step)]
+            scored = [(err(t), t) for t in trials if len(t) == 1 or t[1] < t[0]]
+            if not scored or min(scored)[0] >= e:
+                break
+            e, ex = min(scored)
+    return ex, e
 
 
 def own_start(st: FitState, rec: Record, err: NDArray[np.float64],

@@ -825,21 +825,25 @@ def initial_state(run: Run, found: Found, fl: Floors) -> None:
         return
     cur, hos = found.cur, run.hos
     est = {h.name: estimate(cur, h) for h in hos}
-    # Only a staircase whose part's error is its own is kept.
-    errs = [own_start(cur, ho, e, est[ho.name])[0] for e, ho in zip(run.holdout_errors(cur), hos)]
-    sc = rmse(np.concatenate(errs))
-    g = gain(found.score, sc)
-    run.say(f"initial state of each holdout: holdout RMSE {sc:.4g} (without: {found.score:.4g})")
+    plain = run.holdout_errors(cur)
+    # Only a staircase whose part's error is its own is kept; the gain is against the
+    # same chain's errors without any (``found.score`` may be a cross-fitted score,
+    # whose difference from these errors is no start's).
+    kept = [own_start(cur, ho, e, est[ho.name]) for e, ho in zip(plain, hos)]
+    sc0, sc = rmse(np.concatenate(plain)), rmse(np.concatenate([e for e, _ in kept]))
+    g = gain(sc0, sc)
+    run.say(f"initial state of each holdout: holdout RMSE {sc:.4g} (without: {sc0:.4g}) on "
+            f"{', '.join(h.name for h, (_, ex) in zip(hos, kept) if ex) or 'no holdout'}")
     first = max(hos, key=lambda h: est[h.name][1] - est[h.name][2])
     found.tried["initial_state"] = {
-        "state": cur, "rmse_after": sc, "rmse_current": found.score, "score": g, "round": len(found.accepted) + 1,
+        "state": cur, "rmse_after": sc, "rmse_current": sc0, "score": g, "round": len(found.accepted) + 1,
         "fitted_on": "each holdout's start, before its input swept the range",
         "params": {"extrema": est[first.name][0], "record_extrema": {h.name: est[h.name][0] for h in hos}}}
-    if g < run.min_shrink or found.score - sc < 0.5 * fl.accept or sc >= fl.hyst_alone:
+    if g < run.min_shrink or sc0 - sc < 0.5 * fl.accept or sc >= fl.hyst_alone:
         found.tried["initial_state"]["refused"] = "no gain on the holdouts"
     else:
         found.accepted.append("initial_state")
-        found.score = sc
+        found.score *= sc / sc0  # the holdout RMSE with the staircases' share removed
 
 
 def mark_rest(run: Run) -> None:
