@@ -78,7 +78,7 @@ def shifted_sse(rows: NDArray[np.float64], y: NDArray[np.float64], samples: floa
     return total
 
 
-Memo = dict[tuple[str, Optional[int], Optional[int], float], float]
+Memo = dict[tuple[int, Optional[int], Optional[int], float], float]
 
 
 def _fit_delay(st: FitState, parts: list[tuple[Record, slice]], bound: Bound,
@@ -87,8 +87,9 @@ def _fit_delay(st: FitState, parts: list[tuple[Record, slice]], bound: Bound,
     part that holds its record's start with its best starting staircase (``outs``: the
     ``profiles`` of each record; a delay shifts the whole record, the staircase only its
     start, so the two are fitted jointly): a grid (``delay_grid``) up to the bound, then
-    parabolic steps. ``memo``: each part's error by delay, shared by fits on the same
-    profiles (the folds of ``holdout_delay`` try the same grid)."""
+    parabolic steps. ``memo``: each part's error by record (its identity), part and
+    delay, shared by fits on the same profiles (the folds of ``holdout_delay`` try the
+    same grid)."""
     d0 = float(st.effects.get("delay", {}).get("delay_s", 0.0))
     hi = max(bound.hi - d0, 0.0)
     dt = min(r.dt for r, _ in parts)
@@ -98,7 +99,7 @@ def _fit_delay(st: FitState, parts: list[tuple[Record, slice]], bound: Bound,
     memo = {} if memo is None else memo
 
     def part_sse(r: Record, sl: slice, d: float) -> float:
-        key = (r.name, sl.start, sl.stop, d)
+        key = (id(r), sl.start, sl.stop, d)
         if key not in memo:
             start = sl.start in (None, 0)
             rows = outs[r.name] if start else outs[r.name][:1]
