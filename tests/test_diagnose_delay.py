@@ -12,9 +12,10 @@ from hypothesis import strategies as st
 
 from preisach.chain import Chain
 from preisach.diagnose import diagnose
-from preisach.diagnose.crossfit import _fit_delay, profiles, shifted
-from preisach.diagnose.effects import FitState, Record
-from preisach.diagnose.ranges import Bound
+from preisach.diagnose.crossfit import _fit_delay, holdout_delay, profiles, shifted, shifted_sse
+from preisach.diagnose.effects import FitState, Record, _grid_then_parabola
+from preisach.diagnose.ranges import Bound, delay_grid
+from preisach.diagnose.search import Fitter
 from preisach.sim import Stage, hysteresis_block
 
 
@@ -128,3 +129,77 @@ def test_a_mode_and_a_delay_on_the_rig():
     # the goal of 10 % is not met on this class.)
     lag = truth["delay_s"] + truth["timing_s"]
     assert abs(found["delay"]["params"]["delay_s"] / lag - 1) < 0.15, (found["delay"]["params"], lag)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(0.0, 60.0), st.integers(20, 200), st.integers(0, 2**31 - 1), st.integers(0, 3))
+def test_the_shifted_errors_are_those_of_the_shifted_rows(samples, n, seed, cut):
+    """``shifted_sse`` (no shifted copy) is the sum of squares of the shifted rows' error
+    on any slice (start, end, a half, all), shifts past the record's end included."""
+    rng = np.random.default_rng(seed)
+    rows, y = rng.standard_normal((4, n)), rng.standard_normal(n)
+    sl = (slice(None), slice(0, n // 2), slice(n // 2, None), slice(n // 3, n - 3))[cut]
+    ref = np.sum((shifted(rows, samples)[:, sl] - y[sl]) ** 2, axis=1)
+    np.testing.assert_allclose(shifted_sse(rows, y, samples, sl), ref, rtol=1e-10, atol=1e-10)
+
+
+def _plain_fit_delay(stt, parts, bound, outs):
+    """The delay fit on the shifted rows themselves, every error computed anew (the
+    oracle of the shared, copy-free fit)."""
+    d0 = float(stt.effects.get("delay", {}).get("delay_s", 0.0))
+    hi = max(bound.hi - d0, 0.0)
+    dt = min(r.dt for r, _ in parts)
+    if hi <= dt:
+        return 0.0
+
+    def sse(d):
+        total = 0.0
+        for r, sl in parts:
+            e = shifted(outs[r.name], (d0 + max(d, 0.0)) / r.dt)[:, sl] - r.y[sl]
+            s = np.sum(e * e, axis=1)
+            total += float(np.min(s) if sl.start in (None, 0) else s[0])
+        return total
+
+    d, _ = _grid_then_parabola(sse, delay_grid(dt, hi))
+    return float(min(max(d, 0.0), hi))
+
+
+def _fitted(train, holdouts):
+    """The hysteresis fitted to the training record (the diagnosis's fit, no effect) and
+    the records."""
+    def rec(name, r):
+        return Record(name, r["t"], r["u"], r["y"], float(r["t"][1] - r["t"][0]))
+
+    tr = rec("train", train)
+    hos = [rec(f"holdout {i + 1}", h) for i, h in enumerate(holdouts)]
+    fitter = Fitter(tr, 20, (float(tr.u.min()), float(tr.u.max())), stride=4)
+    return fitter.state({}), hos
+
+
+@pytest.mark.parametrize("source", ["project", "rig"])
+def test_the_holdout_delay_fit_is_the_plain_one(source):
+    """The holdouts' delay fit (its folds sharing each record's errors, computed without
+    shifted copies) finds the delays the plain fit finds, fold by fold, with two holdouts
+    and with one (its halves), on the project's simulator and on the rig."""
+    import rig
+
+    rng = np.random.default_rng(99 if source == "project" else 98)
+    for _ in range(2):
+        if source == "project":
+            recs = _stage_records(int(rng.integers(1 << 30)), float(rng.uniform(3e-4, 3e-3)))
+            stt, hos = _fitted(recs[0], recs[1:])
+        else:
+            stt, hos = _fitted(*rig.records(rig.make_case("holdout_delay", int(rng.integers(1 << 30)))))
+        bound = Bound(0.0, 0.01, False, physical_lo=True)
+        for hs in (hos, hos[:1]):
+            outs = {h.name: profiles(stt, h) for h in hs}
+            xf = holdout_delay(stt, hs, lambda s, hs=hs: [s.predict(h) - h.y for h in hs], bound)
+            if len(hs) >= 2:
+                fits = [[(g, slice(None)) for g in hs if g is not h] for h in hs]
+            else:
+                m = hs[0].y.size // 2
+                fits = [[(hs[0], slice(0, m))], [(hs[0], slice(m, None))]]
+            plain = [_plain_fit_delay(stt, f, bound, outs) for f in fits]
+            np.testing.assert_allclose([f["added_s"] for f in xf["folds"]], plain, rtol=1e-6, atol=1e-9)
+            full = _plain_fit_delay(stt, [(h, slice(None)) for h in hs], bound, outs)
+            np.testing.assert_allclose(xf["added_s"], full, rtol=1e-6, atol=1e-9)

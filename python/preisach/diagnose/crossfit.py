@@ -59,27 +59,55 @@ def profiles(st: FitState, rec: Record) -> NDArray[np.float64]:
     return np.array([predict_from(bare, rec, ex) for ex in [None] + staircases(bare)])
 
 
+def shifted_sse(rows: NDArray[np.float64], y: NDArray[np.float64], samples: float,
+                sl: slice) -> NDArray[np.float64]:
+    """Per row, the sum of squares of ``shifted(rows, samples)[:, sl] - y[sl]``, without
+    building the shifted rows (the columns before the shift hold the first value)."""
+    a, b, _ = sl.indices(y.size)
+    k, f = int(math.floor(samples)), samples - math.floor(samples)
+    h = min(max(k + 1, a), b)
+    total = np.zeros(rows.shape[0])
+    if h > a:
+        e = rows[:, :1] - y[a:h]
+        total += np.einsum("ij,ij->i", e, e)
+    if b > h:
+        cur = rows[:, h - k:b - k]
+        e = cur - y[h:b]
+        e += f * (rows[:, h - k - 1:b - k - 1] - cur)
+        total += np.einsum("ij,ij->i", e, e)
+    return total
+
+
+Memo = dict[tuple[int, Optional[int], Optional[int], float], float]
+
+
 def _fit_delay(st: FitState, parts: list[tuple[Record, slice]], bound: Bound,
-               outs: dict[str, NDArray[np.float64]]) -> float:
+               outs: dict[str, NDArray[np.float64]], memo: Optional[Memo] = None) -> float:
     """The added delay that fits the parts best (masses and the other effects fixed), a
     part that holds its record's start with its best starting staircase (``outs``: the
     ``profiles`` of each record; a delay shifts the whole record, the staircase only its
     start, so the two are fitted jointly): a grid (``delay_grid``) up to the bound, then
-    parabolic steps."""
+    parabolic steps. ``memo``: each part's error by record (its identity), part and
+    delay, shared by fits on the same profiles (the folds of ``holdout_delay`` try the
+    same grid)."""
     d0 = float(st.effects.get("delay", {}).get("delay_s", 0.0))
     hi = max(bound.hi - d0, 0.0)
     dt = min(r.dt for r, _ in parts)
     if hi <= dt:
         return 0.0
     grid = delay_grid(dt, hi)
+    memo = {} if memo is None else memo
+
+    def part_sse(r: Record, sl: slice, d: float) -> float:
+        key = (id(r), sl.start, sl.stop, d)
+        if key not in memo:
+            start = sl.start in (None, 0)
+            rows = outs[r.name] if start else outs[r.name][:1]
+            memo[key] = float(np.min(shifted_sse(rows, r.y, (d0 + d) / r.dt, sl)))
+        return memo[key]
 
     def sse(d: float) -> float:
-        total = 0.0
-        for r, sl in parts:
-            e = shifted(outs[r.name], (d0 + max(d, 0.0)) / r.dt)[:, sl] - r.y[sl]
-            s = np.sum(e * e, axis=1)
-            total += float(np.min(s) if sl.start in (None, 0) else s[0])
-        return total
+        return sum(part_sse(r, sl, max(d, 0.0)) for r, sl in parts)
 
     d, _ = _grid_then_parabola(sse, grid)
     return float(min(max(d, 0.0), hi))
@@ -96,13 +124,14 @@ def holdout_delay(st: FitState, hos: list[Record], errors: Errors, bound: Bound)
     was fitted on what, and the delay found), ``added_s`` (the delay fitted on every
     holdout, for the saved chain) and ``state`` (the chain with it)."""
     outs = {h.name: profiles(st, h) for h in hos}
+    memo: Memo = {}
     out = [np.empty(h.y.size) for h in hos]
     plain = [np.empty(h.y.size) for h in hos]
     folds = []
     if len(hos) >= 2:
         for i, h in enumerate(hos):
             fit = [(g, slice(None)) for g in hos if g is not h]
-            d = _fit_delay(st, fit, bound, outs)
+            d = _fit_delay(st, fit, bound, outs, memo)
             sd = _with_delay(st, d)
             plain[i] = errors(sd)[i]
             out[i] = own_start(sd, h, plain[i])[0]
@@ -111,14 +140,14 @@ def holdout_delay(st: FitState, hos: list[Record], errors: Errors, bound: Bound)
         h = hos[0]
         m = h.y.size // 2
         for on, score, label in ((slice(0, m), slice(m, None), "second"), (slice(m, None), slice(0, m), "first")):
-            d = _fit_delay(st, [(h, on)], bound, outs)
+            d = _fit_delay(st, [(h, on)], bound, outs, memo)
             sd = _with_delay(st, d)
             e = errors(sd)[0]
             plain[0][score] = e[score]
             out[0][score] = own_start(sd, h, e)[0][score]
             folds.append({"fit": [f"{h.name} {'first' if label == 'second' else 'second'} half"],
                           "score": f"{h.name} {label} half", "added_s": d})
-    added = _fit_delay(st, [(h, slice(None)) for h in hos], bound, outs)
+    added = _fit_delay(st, [(h, slice(None)) for h in hos], bound, outs, memo)
     return {"errors": out, "plain": plain, "folds": folds, "added_s": added, "state": _with_delay(st, added)}
 
 
