@@ -24,7 +24,7 @@ from preisach.chain import Chain, load
 from preisach.diagnose import crossfit as cf
 from preisach.diagnose import kept, lag, rest, sessions
 from preisach.diagnose.crossfit import consistent, holdout_delay
-from preisach.diagnose.effects import CANDIDATES, FitState, Record, _grid_then_parabola, rmse
+from preisach.diagnose.effects import CANDIDATES, FitState, Record, rmse
 from preisach.diagnose.initial import estimate, own_start
 from preisach.diagnose.ranges import ends_at_bound
 from preisach.diagnose.records import RecordLike, check_distinct, holdout_list, load_record, reversals
@@ -337,6 +337,9 @@ def where(run: Run, found: Found, hyst_alone: float,
             f"residual localized on {len(recs)} records")
     t_all = np.concatenate([r.t for r in recs])
     scale = Scale(2.0 * min(r.dt for r in recs), run.fitter.dt, run.tr, float(t_all.max() - t_all.min()), floor)
+    for f in (run.fitter, run.fine, run.fitter.slow):
+        if f is not None:
+            f.min_delay = scale.min_delay  # the record's timing fits below it (``Fitter.timing``)
     return Floors(floor, floor_j, rep_floor, found.score, hyst_alone, nh2, scale), loc, sig
 
 
@@ -559,12 +562,9 @@ def record_timing(run: Run, found: Found, fl: Floors) -> None:
         return
     with warnings.catch_warnings(), run.trials.search():
         warnings.simplefilter("ignore", PreisachWarning)
-        cur = found.cur.effects
-        f, fm = run.fitter.along(lambda d: dict(cur, delay={"delay_s": d}))
-        d, _ = _grid_then_parabola(f, np.linspace(0.0, np.nextafter(fl.scale.min_delay, 0.0), 9), fmany=fm)
-        if d <= 0:
+        eff = run.fitter.timing(found.cur.effects)
+        if "delay" not in eff:
             return
-        eff = dict(cur, delay={"delay_s": float(d)})
         st = run.fitter.state(eff)
     sc, parts = run.score_parts(st)
     run.say(f"the record's timing ({1e3 * eff['delay']['delay_s']:.3g} ms): holdout RMSE {sc:.4g} "
@@ -775,10 +775,8 @@ def timing_chain(run: Run, cur: FitState) -> FitState:
         return cur
     with warnings.catch_warnings(), run.trials.search():
         warnings.simplefilter("ignore", PreisachWarning)
-        eff = REGISTRY["delay"].fit(run.fitter, cur.effects)
-        if eff["delay"]["delay_s"] <= 0:
-            return cur
-        return run.fine.state(eff)
+        eff = run.fitter.timing(cur.effects)
+        return run.fine.state(eff) if "delay" in eff else cur
 
 
 def holdout_delay_step(run: Run, found: Found, fl: Floors) -> None:
