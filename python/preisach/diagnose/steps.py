@@ -819,10 +819,11 @@ def holdout_delay_step(run: Run, found: Found, fl: Floors) -> None:
         found.cross_fit["delay"]["refused"] = why
 
 
-def _without_slow(run: Run, found: Found, x: str) -> tuple[FitState, float, np.ndarray]:
+def _without_slow(run: Run, found: Found, x: str) -> tuple[FitState, float, np.ndarray, Optional[dict[str, Any]]]:
     """The chain without slow effect ``x``, its masses refitted on the training record
     with the other effects (as a candidate's search fits them), a delay only the holdouts
-    carry cross-fitted again on it (as its step does); its state, score and parts."""
+    carry cross-fitted again on it (as its step does); its state, score, parts and that
+    delay's cross-fit record (None without one)."""
     eff = {k: dict(v) for k, v in found.cur.effects.items() if k != x}
     held = "delay" in found.accepted and found.tried.get("delay", {}).get("fitted_on") == "holdouts"
     if held:
@@ -835,11 +836,13 @@ def _without_slow(run: Run, found: Found, x: str) -> tuple[FitState, float, np.n
         st = run.fine.state(eff, n_h=found.cur.model.n_h)
     if not held:
         sc, parts = run.score_parts(st)
-        return st, sc, parts
+        return st, sc, parts, None
     base = timing_chain(run, st)
     xf = holdout_delay(base, run.hos, run.holdout_errors, run.fitter.ranges["delay"]["delay_s"])
     sc, parts = run.parts_of(xf["plain"])
-    return xf["state"], sc, parts
+    rec = {"folds": xf["folds"], "added_s": xf["added_s"],
+           "base_delay_s": float(base.effects.get("delay", {}).get("delay_s", 0.0))}
+    return xf["state"], sc, parts, rec
 
 
 def drop_slow(run: Run, found: Found, fl: Floors) -> None:
@@ -851,7 +854,7 @@ def drop_slow(run: Run, found: Found, fl: Floors) -> None:
     RMSE by ``min_shrink`` (a quarter of it when it explains most of the training
     error) and by more than half the floor; else it is dropped."""
     for x in [k for k in found.accepted if k in REGISTRY and REGISTRY[k].slow and k in found.cur.effects]:
-        st2, sc2, parts2 = _without_slow(run, found, x)
+        st2, sc2, parts2, delay_fit = _without_slow(run, found, x)
         g = gain(sc2, found.score)
         strong = found.tried.get(x, {}).get("train_gain", 0.0) >= 0.5
         keep = sc2 - found.score >= 0.5 * fl.accept and (g >= run.min_shrink
@@ -862,7 +865,8 @@ def drop_slow(run: Run, found: Found, fl: Floors) -> None:
             found.accepted.remove(x)
             found.tried[x]["refused"] = "no gain once the effects only the holdouts carry are in the chain"
             found.move(st2, sc2, parts2)
-            if "delay" in found.cross_fit and "refused" not in found.cross_fit["delay"]:
+            if delay_fit is not None:
+                found.cross_fit["delay"] = delay_fit
                 found.tried["delay"]["state"] = st2
 
 
