@@ -246,6 +246,9 @@ class Fitter:
         #: The record starts with a step from an unknown rest level: its transient is one
         #: more linear coefficient of every fit (``preisach.diagnose.rest``).
         self.rest = False
+        #: The shortest lag called a delay (two samples of the fastest record; the
+        #: diagnosis sets it from all the records): :meth:`timing` fits below it.
+        self.min_delay = 2.0 * rec.dt
 
     def Jmany(self, effs: Sequence[Effects]) -> list[float]:
         """``J`` of several chains (the ones not memoized yet in parallel)."""
@@ -566,14 +569,16 @@ class Fitter:
         return float(c), fx
 
     def timing(self, eff: Effects) -> Effects:
-        """The chain with the record's own timing: a delay of at most two samples (what the
-        sampling explains: an ADC's latency, a DAC's hold), fitted on the profiled error.
+        """The chain with the record's own timing: a delay shorter than ``min_delay`` (what
+        the sampling explains: an ADC's latency, a DAC's hold), fitted on the profiled
+        error (a grid, then parabolic steps); the chain as given when the best is none.
         At the drive's frequency such a lag widens the loops as a creep element does, and
         the amplitude fitted to a record that shows little else of the creep takes it."""
-        hi = 1.99 * self.rec.dt
+        hi = float(np.nextafter(self.min_delay, 0.0))
         f, fm = self.along(lambda d: dict(eff, delay={"delay_s": d}))
-        d, _ = _grid_then_parabola(f, np.linspace(0.0, hi, 5), fmany=fm)
-        return dict(eff, delay={"delay_s": float(min(max(d, 0.0), hi))}) if d > 0 else eff
+        d, _ = _grid_then_parabola(f, np.linspace(0.0, hi, 9), fmany=fm)
+        d = min(max(d, 0.0), hi)
+        return dict(eff, delay={"delay_s": float(d)}) if d > 0 else eff
 
     def creep_held(self, eff: Effects, held: Callable[[Effects], float]) -> Effects:
         """Creep (one element) whose time constant the held-out records choose. One record

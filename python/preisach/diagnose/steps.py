@@ -24,7 +24,7 @@ from preisach.chain import Chain, load
 from preisach.diagnose import crossfit as cf
 from preisach.diagnose import kept, lag, rest, sessions
 from preisach.diagnose.crossfit import consistent, holdout_delay
-from preisach.diagnose.effects import CANDIDATES, FitState, Record, _grid_then_parabola, rmse
+from preisach.diagnose.effects import CANDIDATES, FitState, Record, rmse
 from preisach.diagnose.initial import estimate, own_start
 from preisach.diagnose.ranges import ends_at_bound
 from preisach.diagnose.records import RecordLike, check_distinct, holdout_list, load_record, reversals
@@ -337,6 +337,9 @@ def where(run: Run, found: Found, hyst_alone: float,
             f"residual localized on {len(recs)} records")
     t_all = np.concatenate([r.t for r in recs])
     scale = Scale(2.0 * min(r.dt for r in recs), run.fitter.dt, run.tr, float(t_all.max() - t_all.min()), floor)
+    for f in (run.fitter, run.fine, run.fitter.slow):
+        if f is not None:
+            f.min_delay = scale.min_delay  # the record's timing fits below it (``Fitter.timing``)
     return Floors(floor, floor_j, rep_floor, found.score, hyst_alone, nh2, scale), loc, sig
 
 
@@ -559,12 +562,9 @@ def record_timing(run: Run, found: Found, fl: Floors) -> None:
         return
     with warnings.catch_warnings(), run.trials.search():
         warnings.simplefilter("ignore", PreisachWarning)
-        cur = found.cur.effects
-        f, fm = run.fitter.along(lambda d: dict(cur, delay={"delay_s": d}))
-        d, _ = _grid_then_parabola(f, np.linspace(0.0, np.nextafter(fl.scale.min_delay, 0.0), 9), fmany=fm)
-        if d <= 0:
+        eff = run.fitter.timing(found.cur.effects)
+        if "delay" not in eff:
             return
-        eff = dict(cur, delay={"delay_s": float(d)})
         st = run.fitter.state(eff)
     sc, parts = run.score_parts(st)
     run.say(f"the record's timing ({1e3 * eff['delay']['delay_s']:.3g} ms): holdout RMSE {sc:.4g} "
@@ -762,8 +762,11 @@ def drop_redundant(run: Run, found: Found, best: str) -> None:
 def holdout_effects(run: Run, found: Found, fl: Floors) -> None:
     """Effects only the holdouts carry: the fast ones on the holdouts' halves, then a
     delay added to the chain found."""
+    before = list(found.accepted)
     holdout_halves(run, found, fl)
     holdout_delay_step(run, found, fl)
+    if any(k not in before for k in found.accepted):
+        drop_slow(run, found, fl)
 
 
 def timing_chain(run: Run, cur: FitState) -> FitState:
@@ -775,10 +778,8 @@ def timing_chain(run: Run, cur: FitState) -> FitState:
         return cur
     with warnings.catch_warnings(), run.trials.search():
         warnings.simplefilter("ignore", PreisachWarning)
-        eff = REGISTRY["delay"].fit(run.fitter, cur.effects)
-        if eff["delay"]["delay_s"] <= 0:
-            return cur
-        return run.fine.state(eff)
+        eff = run.fitter.timing(cur.effects)
+        return run.fine.state(eff) if "delay" in eff else cur
 
 
 def holdout_delay_step(run: Run, found: Found, fl: Floors) -> None:
@@ -816,6 +817,57 @@ def holdout_delay_step(run: Run, found: Found, fl: Floors) -> None:
         found.move(xf["state"], sc_plain, parts_x)
     else:
         found.cross_fit["delay"]["refused"] = why
+
+
+def _without_slow(run: Run, found: Found, x: str) -> tuple[FitState, float, np.ndarray, Optional[dict[str, Any]]]:
+    """The chain without slow effect ``x``, its masses refitted on the training record
+    with the other effects (as a candidate's search fits them), a delay only the holdouts
+    carry cross-fitted again on it (as its step does); its state, score, parts and that
+    delay's cross-fit record (None without one)."""
+    eff = {k: dict(v) for k, v in found.cur.effects.items() if k != x}
+    held = "delay" in found.accepted and found.tried.get("delay", {}).get("fitted_on") == "holdouts"
+    if held:
+        d0 = float(found.cross_fit["delay"]["base_delay_s"])
+        eff.pop("delay")
+        if d0 > 0:
+            eff["delay"] = {"delay_s": d0}
+    with warnings.catch_warnings(), run.trials.search():
+        warnings.simplefilter("ignore", PreisachWarning)
+        st = run.fine.state(eff, n_h=found.cur.model.n_h)
+    if not held:
+        sc, parts = run.score_parts(st)
+        return st, sc, parts, None
+    base = timing_chain(run, st)
+    xf = holdout_delay(base, run.hos, run.holdout_errors, run.fitter.ranges["delay"]["delay_s"])
+    sc, parts = run.parts_of(xf["plain"])
+    rec = {"folds": xf["folds"], "added_s": xf["added_s"],
+           "base_delay_s": float(base.effects.get("delay", {}).get("delay_s", 0.0))}
+    return xf["state"], sc, parts, rec
+
+
+def drop_slow(run: Run, found: Found, fl: Floors) -> None:
+    """Backward elimination of the slow effects (creep, drift) once the holdout effects
+    are in the chain: a slow effect accepted in the search on its holdout score may have
+    stood in there for part of an effect only the holdouts carry (creep's lag for a
+    channel's delay). Each is kept only when it still meets the rule it was accepted by
+    against the chain without it (``_without_slow``): it shrinks that chain's holdout
+    RMSE by ``min_shrink`` (a quarter of it when it explains most of the training
+    error) and by more than half the floor; else it is dropped."""
+    for x in [k for k in found.accepted if k in REGISTRY and REGISTRY[k].slow and k in found.cur.effects]:
+        st2, sc2, parts2, delay_fit = _without_slow(run, found, x)
+        g = gain(sc2, found.score)
+        strong = found.tried.get(x, {}).get("train_gain", 0.0) >= 0.5
+        keep = sc2 - found.score >= 0.5 * fl.accept and (g >= run.min_shrink
+                                                          or (strong and g >= 0.25 * run.min_shrink))
+        run.say(f"without {x} (after the holdout effects): holdout RMSE {sc2:.4g} (with: {found.score:.4g})"
+                f"{'' if keep else f'; {x} dropped'}")
+        if not keep:
+            found.accepted.remove(x)
+            found.tried[x]["refused"] = "no gain once the effects only the holdouts carry are in the chain"
+            found.move(st2, sc2, parts2)
+            if delay_fit is not None:
+                found.cross_fit["delay"] = delay_fit
+                found.tried["delay"]["state"] = st2
 
 
 def initial_state(run: Run, found: Found, fl: Floors) -> None:
