@@ -535,10 +535,10 @@ class Fitter:
         if name == "lowpass":
             eff = self.other_order(eff)
             if held is not None:
-                eff = self.lag_held(eff, held)
+                eff = self.lag_held(eff, held, j_base)
         return self.with_linear(eff)
 
-    def lag_held(self, eff: Effects, held: Callable[[Effects], float]) -> Effects:
+    def lag_held(self, eff: Effects, held: Callable[[Effects], float], j_base: float) -> Effects:
         """The low-pass's order and its share of the chain's lag, chosen by the held-out
         records. A slow identification sine shows a low-pass only as a lag, which a delay
         gives as well: the training record rarely tells them apart (nor the orders). Steps
@@ -546,7 +546,9 @@ class Fitter:
         rounds their edges; a delay's does not). So: the chain's low-frequency lag (delay
         plus group delay) kept, the delay's share on a grid for each order (cutoffs within
         the range), the masses fitted on the training record, each chain scored by
-        ``held`` (its error on the other records, judged cross-fitted by the caller)."""
+        ``held`` (its error on the other records, judged cross-fitted by the caller). A
+        chain that does not fit the training record better than ``j_base`` (the chain
+        without the low-pass) is not chosen: it only trades errors between records."""
         lag = eff["delay"]["delay_s"] + group_delay(eff["lowpass"])
         hi = self.ranges["lowpass"]["cutoff_hz"].hi
         if lag <= 0:
@@ -559,6 +561,8 @@ class Fitter:
                 if fc <= hi:
                     chains.append(dict(eff, delay={"delay_s": share * lag},
                                        lowpass={"cutoff_hz": fc, "order": order}))
+        fits = self.trials.map(lambda e: self.J(e) < j_base, chains)
+        chains = [eff] + [e for e, ok in zip(chains[1:], fits[1:]) if ok]
         scores = self.trials.map(held, chains)
         return chains[int(np.argmin(scores))]
 
