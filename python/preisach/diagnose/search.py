@@ -558,9 +558,9 @@ class Fitter:
         top = min(d0, lag) / lag
         chains = [eff] if eff["delay"]["delay_s"] <= d0 * (1 + 1e-9) else []
         for order in (1, 2):
-            for share in sorted({s for s in LAG_SHARES if s < top} | {top}):
+            for share in sorted({s for s in LAG_SHARES if s < top} | {top} - {1.0}):
                 fc = (1.0 if order == 1 else math.sqrt(2.0)) / (2 * math.pi * (1.0 - share) * lag)
-                if share < 1.0 and fc <= hi:
+                if fc <= hi:
                     chains.append(dict(eff, delay={"delay_s": share * lag},
                                        lowpass={"cutoff_hz": fc, "order": order}))
         if not chains:
