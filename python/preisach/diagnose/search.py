@@ -545,9 +545,10 @@ class Fitter:
         gives as well: the training record rarely tells them apart (nor the orders). Steps
         and faster sines do (a low-pass's lag shrinks at their high frequencies and it
         rounds their edges; a delay's does not). So: the chain's low-frequency lag (delay
-        plus group delay) kept, for each order the delay on a grid from 0 to ``d0`` (the
-        chain's delay before the low-pass: the candidate adds a low-pass, not a delay) and
-        the low-pass taking the rest (cutoffs within the range), the masses fitted on the
+        plus group delay) kept; the chain the training record chose, and for each order
+        the delay on a grid from 0 to ``d0`` (the chain's delay before the low-pass: the
+        grid adds a low-pass, not a delay) with the low-pass taking the rest of the lag
+        (cutoffs within the range); the masses fitted on the
         training record, each chain scored by ``held`` (its error on the other records,
         judged cross-fitted by the caller; a chain that fits the training record worse
         than without the low-pass is then refused as any candidate is)."""
@@ -556,15 +557,13 @@ class Fitter:
         if lag <= 0:
             return eff
         top = min(d0, lag) / lag
-        chains = [eff] if eff["delay"]["delay_s"] <= d0 * (1 + 1e-9) else []
+        chains = [eff]
         for order in (1, 2):
             for share in sorted({s for s in LAG_SHARES if s < top} | {top} - {1.0}):
                 fc = (1.0 if order == 1 else math.sqrt(2.0)) / (2 * math.pi * (1.0 - share) * lag)
                 if fc <= hi:
                     chains.append(dict(eff, delay={"delay_s": share * lag},
                                        lowpass={"cutoff_hz": fc, "order": order}))
-        if not chains:
-            return eff
         scores = self.trials.map(held, chains)
         return chains[int(np.argmin(scores))]
 
