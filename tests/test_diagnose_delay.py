@@ -113,8 +113,8 @@ def test_a_holdout_only_delay_on_the_rig():
 
 def test_a_mode_and_a_delay_on_the_rig():
     """The rig's ``paper_mode_delay`` class (the paper's protocol, random stage): the mode
-    within 3 % and the delay found, no low-pass standing in for its lag (a low-pass
-    candidate takes no more of the lag than the chain's delay had)."""
+    within 3 % and the delay found, no low-pass standing in for its lag (the holdouts'
+    steps choose a low-pass's share of the lag)."""
     import rig
 
     case = rig.make_case("paper_mode_delay", 4712)
