@@ -126,6 +126,19 @@ def test_diagnosis_finds_the_stage_resonance(demo):
     assert d["augmented"]["holdout_rmse"] < 0.5 * d["baseline"]["holdout_rmse"]
 
 
+def test_the_saved_chain_holds_only_what_the_report_detects(demo):
+    """Every effect block of the saved chain is a detected effect (the record's timing
+    may be a delay block): a low-pass the mode's fit brought at its search bound is not
+    in it."""
+    out, _, _ = demo
+    d = json.loads((out / "diagnosis.json").read_text(encoding="utf-8"))
+    chain = json.loads((out / "diagnosis_chain.json").read_text(encoding="utf-8"))
+    detected = {e["name"] for e in d["effects"] if e["detected"]}
+    blocks = {b["type"] for b in chain["blocks"]} - {"hysteresis"}
+    assert blocks - {"delay"} <= detected, (blocks, detected)
+    assert set(d["augmented"]["effects"]) - {"delay"} <= detected
+
+
 @pytest.mark.skipif(not HAVE_MPL, reason="matplotlib not installed")
 def test_figures_are_written(demo):
     out, _, _ = demo

@@ -66,6 +66,9 @@ SCALARS: dict[str, list[tuple[str, float]]] = {
     "rate": [("tau_s", 0.2)],
 }
 DYNAMIC = ("vibration", "lowpass")
+#: The delay's shares of a chain's lag the held-out records choose among (``Fitter.lag_held``;
+#: up to the chain's delay before the low-pass, which is tried as well).
+LAG_SHARES = (0.0, 0.15, 0.3, 0.45, 0.6, 0.75, 0.9)
 #: Columns from full-rate runs a fitter keeps (``Fitter._kept``; each is one averaged record).
 COLUMNS_KEPT = 128
 #: Effects whose parameters trade off against each other's (polished together): a delay
@@ -535,7 +538,37 @@ class Fitter:
         eff, _ = self.polish(eff, names, sweeps=2, refine=1)
         if name == "lowpass":
             eff = self.other_order(eff)
+            if held is not None:
+                eff = self.lag_held(eff, held, float(base.get("delay", {}).get("delay_s", 0.0)))
         return self.with_linear(eff)
+
+    def lag_held(self, eff: Effects, held: Callable[[Effects], float], d0: float) -> Effects:
+        """The low-pass's order and its share of the chain's lag, chosen by the held-out
+        records. A slow identification sine shows a low-pass only as a lag, which a delay
+        gives as well: the training record rarely tells them apart (nor the orders). Steps
+        and faster sines do (a low-pass's lag shrinks at their high frequencies and it
+        rounds their edges; a delay's does not). So: the chain's low-frequency lag (delay
+        plus group delay) kept; the chain the training record chose, and for each order
+        the delay on a grid from 0 to ``d0`` (the chain's delay before the low-pass: the
+        grid adds a low-pass, not a delay) with the low-pass taking the rest of the lag
+        (cutoffs within the range); the masses fitted on the
+        training record, each chain scored by ``held`` (its error on the other records,
+        judged cross-fitted by the caller; a chain that fits the training record worse
+        than without the low-pass is then refused as any candidate is)."""
+        lag = eff["delay"]["delay_s"] + group_delay(eff["lowpass"])
+        hi = self.ranges["lowpass"]["cutoff_hz"].hi
+        if lag <= 0:
+            return eff
+        top = min(d0, lag) / lag
+        chains = [eff]
+        for order in (1, 2):
+            for share in sorted({s for s in LAG_SHARES if s < top} | {top} - {1.0}):
+                fc = (1.0 if order == 1 else math.sqrt(2.0)) / (2 * math.pi * (1.0 - share) * lag)
+                if fc <= hi:
+                    chains.append(dict(eff, delay={"delay_s": share * lag},
+                                       lowpass={"cutoff_hz": fc, "order": order}))
+        scores = self.trials.map(held, chains)
+        return chains[int(np.argmin(scores))]
 
     def other_order(self, eff: Effects) -> Effects:
         """Try the other low-pass order with the same low-frequency group delay."""

@@ -512,7 +512,9 @@ def accept_pairs(run: Run, found: Found, fl: Floors, best: str) -> None:
     """The effects fitted with ``best`` as a pair (a mode whose ringing needed a delay)
     that are real ones of their kind are accepted with it; an accepted effect its fit
     replaced (a low-pass that stood in for the lag a mode's fit gave to a delay) is
-    dropped."""
+    dropped. A low-pass fitted with it that is not accepted (at a search bound, or the
+    record's timing) is replaced by a delay of its lag: the chain saved holds the
+    effects the report names, and the record's timing as a delay."""
     for x in [k for k in found.accepted if k != best and k in REGISTRY and k not in found.cur.effects]:
         found.accepted.remove(x)
         found.tried[x]["refused"] = f"replaced in the fit of {best}"
@@ -524,6 +526,13 @@ def accept_pairs(run: Run, found: Found, fl: Floors, best: str) -> None:
             found.accepted.append(x)
             found.tried[x] = dict(found.tried[best],
                                   score=found.tried.get(x, {}).get("score", found.tried[best]["score"]))
+    if "lowpass" in found.cur.effects and "lowpass" not in found.accepted and "lowpass" not in run.base.effects:
+        # A low-pass the fit brought that is not one (at a bound, or the record's timing)
+        # leaves the chain: its lag goes to the delay (what the chain saved then names).
+        st = FitState(found.cur.model, lag.delay_equivalent(found.cur.effects), found.cur.train_rmse)
+        sc, parts = run.score_parts(st)
+        run.say(f"the low-pass fitted with {best} is not one: its lag given to the delay (holdout RMSE {sc:.4g})")
+        found.move(st, sc, parts)
 
 
 def eliminate(run: Run, found: Found, best: str, rnd: int) -> None:
