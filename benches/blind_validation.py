@@ -128,8 +128,8 @@ def summarize(results: list[dict[str, Any]], verbose: bool = True) -> dict[str, 
         print(f"- realised shrink on the unseen record (stages with effects): median **{out['median_shrink']:.0%}** (goal ≥ 70 %)")
         if shrink_ref:
             print(f"- the same against a fairer before (the interpolated model refitted with no effect): median "
-                  f"**{out['median_shrink_vs_interpolated']:.0%}** on stages with effects, "
-                  f"{np.median(shrink_ref_none):.0%} on `none` stages")
+                  f"**{out['median_shrink_vs_interpolated']:.0%}** on stages with effects"
+                  + (f", {np.median(shrink_ref_none):.0%} on `none` stages" if shrink_ref_none else ""))
         secs = [r["seconds"] for r in results]
         print(f"- diagnosis time per stage: median {np.median(secs):.1f} s, max {max(secs):.1f} s\n")
         print("### Per stage\n")
