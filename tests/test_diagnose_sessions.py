@@ -29,6 +29,7 @@ def test_session_offsets_on_the_project_stage():
     rep = diagnose(recs[0], recs[1:], progress=False)
     d = next(e for e in rep.effects if e["name"] == "drift")
     assert rep.dominant_effect == "drift" and d["detected"], [(e["name"], e["refused"]) for e in rep.effects]
+    assert {e["name"] for e in rep.effects if e["detected"]} <= {"drift", "discretization"}, rep.effects
     got = d["params"]["record_offsets"]
     assert set(got) == {"holdout 1", "holdout 2"}
     # What the drift's trend leaves to the record: the two offsets' difference is the
@@ -44,8 +45,10 @@ def test_creep_on_the_project_stage_is_not_sessions():
     assert d is None or "record_offsets" not in d["params"], d
 
 
-@pytest.mark.parametrize("name,seed", [("sessions", 1007), ("history", 1006), ("repeats", 1001)])
+@pytest.mark.parametrize("name,seed", [("sessions", 1007), ("sessions", 3007), ("history", 1006), ("repeats", 1001)])
 def test_sessions_on_the_rig(name, seed):
+    """Sessions: offsets by record, and nothing else (on 3007 a creep of ten record
+    lengths, an offset per record, stands in for them in the search)."""
     import rig
 
     case = rig.make_case(name, seed)
@@ -54,6 +57,7 @@ def test_sessions_on_the_rig(name, seed):
     d = next((e for e in rep.effects if e["name"] == "drift"), None)
     if name == "sessions":
         assert rep.dominant_effect == "drift" and set(d["params"]["record_offsets"]) == {"holdout 1", "holdout 2"}
+        assert {e["name"] for e in rep.effects if e["detected"]} <= {"drift", "discretization"}, rep.effects
         true = [r["session_offset"] for r in case["truth"]["records"]]
         # The holdouts' offsets against the training record's session, in order.
         off = d["params"]["record_offsets"]

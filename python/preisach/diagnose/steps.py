@@ -864,10 +864,7 @@ def drop_slow(run: Run, found: Found, fl: Floors) -> None:
     error) and by more than half the floor; else it is dropped."""
     for x in [k for k in found.accepted if k in REGISTRY and REGISTRY[k].slow and k in found.cur.effects]:
         st2, sc2, parts2, delay_fit = _without_slow(run, found, x)
-        g = gain(sc2, found.score)
-        strong = found.tried.get(x, {}).get("train_gain", 0.0) >= 0.5
-        keep = sc2 - found.score >= 0.5 * fl.accept and (g >= run.min_shrink
-                                                          or (strong and g >= 0.25 * run.min_shrink))
+        keep = _still_needed(run, found, fl, x, sc2)
         run.say(f"without {x} (after the holdout effects): holdout RMSE {sc2:.4g} (with: {found.score:.4g})"
                 f"{'' if keep else f'; {x} dropped'}")
         if not keep:
@@ -877,6 +874,41 @@ def drop_slow(run: Run, found: Found, fl: Floors) -> None:
             if delay_fit is not None:
                 found.cross_fit["delay"] = delay_fit
                 found.tried["delay"]["state"] = st2
+
+
+def _still_needed(run: Run, found: Found, fl: Floors, x: str, without: float) -> bool:
+    """Whether slow effect ``x`` still meets the rule it was accepted by against the chain
+    without it (holdout RMSE ``without``): it shrinks that RMSE by ``min_shrink`` (a
+    quarter of it when it explains most of the training error) and by more than half the
+    floor."""
+    g = gain(without, found.score)
+    strong = found.tried.get(x, {}).get("train_gain", 0.0) >= 0.5
+    return without - found.score >= 0.5 * fl.accept and (g >= run.min_shrink or (strong and g >= 0.25 * run.min_shrink))
+
+
+def drop_slow_for_levels(run: Run, found: Found, fl: Floors) -> None:
+    """Backward elimination of creep once the records' own levels (``session_offsets``)
+    are in the chain: a creep whose time constant is far beyond the records, accepted in
+    the search on its holdout score, is an offset per record and may have stood in for
+    those levels. It is kept only when it still meets the rule it was accepted by
+    against the chain without it, both with the records' levels fitted (cross-fitted)."""
+    for x in [k for k in found.accepted if k != "drift" and k in REGISTRY and REGISTRY[k].slow
+              and k in found.cur.effects]:
+        st2, _, _, delay_fit = _without_slow(run, found, x)
+        offs, gains, es = sessions.offsets(run.holdout_errors(st2), [h.y for h in run.hos], [h.u for h in run.hos],
+                                           [h.name for h in run.hos], fl.accept)
+        sc2 = rmse(np.concatenate(es))
+        keep = _still_needed(run, found, fl, x, sc2)
+        run.say(f"without {x} (with the records' levels): holdout RMSE {sc2:.4g} (with: {found.score:.4g})"
+                f"{'' if keep else f'; {x} dropped'}")
+        if keep:
+            continue
+        found.accepted.remove(x)
+        found.tried[x]["refused"] = "no gain once the records' own levels are in the chain"
+        found.cur, found.score, found.record_offsets, found.record_gains = st2, sc2, offs, gains
+        if delay_fit is not None:
+            found.cross_fit["delay"] = delay_fit
+            found.tried["delay"]["state"] = st2
 
 
 def initial_state(run: Run, found: Found, fl: Floors) -> None:
@@ -958,6 +990,7 @@ def session_offsets(run: Run, found: Found, fl: Floors) -> None:
     found.record_offsets = offsets
     found.record_gains = gains
     found.score = sc
+    drop_slow_for_levels(run, found, fl)
 
 
 def rest_where(run: Run, found: Found, where: list[dict[str, Any]]) -> list[dict[str, Any]]:
