@@ -854,58 +854,38 @@ def _without_slow(run: Run, found: Found, x: str) -> tuple[FitState, float, np.n
     return xf["state"], sc, parts, rec
 
 
-def drop_slow(run: Run, found: Found, fl: Floors) -> None:
-    """Backward elimination of the slow effects (creep, drift) once the holdout effects
-    are in the chain: a slow effect accepted in the search on its holdout score may have
-    stood in there for part of an effect only the holdouts carry (creep's lag for a
-    channel's delay). Each is kept only when it still meets the rule it was accepted by
+def drop_slow(run: Run, found: Found, fl: Floors, levels: bool = False) -> None:
+    """Backward elimination of the slow effects (creep, drift) once effects only the
+    holdouts carry are in the chain: a slow effect accepted in the search on its holdout
+    score may have stood in there for part of such an effect (creep's lag for a channel's
+    delay; with ``levels``, a creep far beyond the records for the records' own levels,
+    ``session_offsets``, which are then fitted on the chain without it too, drift itself
+    not re-tested). Each is kept only when it still meets the rule it was accepted by
     against the chain without it (``_without_slow``): it shrinks that chain's holdout
     RMSE by ``min_shrink`` (a quarter of it when it explains most of the training
     error) and by more than half the floor; else it is dropped."""
-    for x in [k for k in found.accepted if k in REGISTRY and REGISTRY[k].slow and k in found.cur.effects]:
+    for x in [k for k in found.accepted if k in REGISTRY and REGISTRY[k].slow and k in found.cur.effects
+              and not (levels and k == "drift")]:
         st2, sc2, parts2, delay_fit = _without_slow(run, found, x)
-        keep = _still_needed(run, found, fl, x, sc2)
-        run.say(f"without {x} (after the holdout effects): holdout RMSE {sc2:.4g} (with: {found.score:.4g})"
-                f"{'' if keep else f'; {x} dropped'}")
-        if not keep:
-            found.accepted.remove(x)
-            found.tried[x]["refused"] = "no gain once the effects only the holdouts carry are in the chain"
-            found.move(st2, sc2, parts2)
-            if delay_fit is not None:
-                found.cross_fit["delay"] = delay_fit
-                found.tried["delay"]["state"] = st2
-
-
-def _still_needed(run: Run, found: Found, fl: Floors, x: str, without: float) -> bool:
-    """Whether slow effect ``x`` still meets the rule it was accepted by against the chain
-    without it (holdout RMSE ``without``): it shrinks that RMSE by ``min_shrink`` (a
-    quarter of it when it explains most of the training error) and by more than half the
-    floor."""
-    g = gain(without, found.score)
-    strong = found.tried.get(x, {}).get("train_gain", 0.0) >= 0.5
-    return without - found.score >= 0.5 * fl.accept and (g >= run.min_shrink or (strong and g >= 0.25 * run.min_shrink))
-
-
-def drop_slow_for_levels(run: Run, found: Found, fl: Floors) -> None:
-    """Backward elimination of creep once the records' own levels (``session_offsets``)
-    are in the chain: a creep whose time constant is far beyond the records, accepted in
-    the search on its holdout score, is an offset per record and may have stood in for
-    those levels. It is kept only when it still meets the rule it was accepted by
-    against the chain without it, both with the records' levels fitted (cross-fitted)."""
-    for x in [k for k in found.accepted if k != "drift" and k in REGISTRY and REGISTRY[k].slow
-              and k in found.cur.effects]:
-        st2, _, _, delay_fit = _without_slow(run, found, x)
-        offs, gains, es = sessions.offsets(run.holdout_errors(st2), [h.y for h in run.hos], [h.u for h in run.hos],
-                                           [h.name for h in run.hos], fl.accept)
-        sc2 = rmse(np.concatenate(es))
-        keep = _still_needed(run, found, fl, x, sc2)
-        run.say(f"without {x} (with the records' levels): holdout RMSE {sc2:.4g} (with: {found.score:.4g})"
+        if levels:
+            offs, gains, es = sessions.offsets(run.holdout_errors(st2), [h.y for h in run.hos],
+                                               [h.u for h in run.hos], [h.name for h in run.hos], fl.accept)
+            sc2 = rmse(np.concatenate(es))
+        g = gain(sc2, found.score)
+        strong = found.tried.get(x, {}).get("train_gain", 0.0) >= 0.5
+        keep = sc2 - found.score >= 0.5 * fl.accept and (g >= run.min_shrink or (strong and g >= 0.25 * run.min_shrink))
+        after = "with the records' levels" if levels else "after the holdout effects"
+        run.say(f"without {x} ({after}): holdout RMSE {sc2:.4g} (with: {found.score:.4g})"
                 f"{'' if keep else f'; {x} dropped'}")
         if keep:
             continue
         found.accepted.remove(x)
-        found.tried[x]["refused"] = "no gain once the records' own levels are in the chain"
-        found.cur, found.score, found.record_offsets, found.record_gains = st2, sc2, offs, gains
+        what = "the records' own levels" if levels else "the effects only the holdouts carry"
+        found.tried[x]["refused"] = f"no gain once {what} are in the chain"
+        if levels:
+            found.cur, found.score, found.record_offsets, found.record_gains = st2, sc2, offs, gains
+        else:
+            found.move(st2, sc2, parts2)
         if delay_fit is not None:
             found.cross_fit["delay"] = delay_fit
             found.tried["delay"]["state"] = st2
@@ -990,7 +970,7 @@ def session_offsets(run: Run, found: Found, fl: Floors) -> None:
     found.record_offsets = offsets
     found.record_gains = gains
     found.score = sc
-    drop_slow_for_levels(run, found, fl)
+    drop_slow(run, found, fl, levels=True)
 
 
 def rest_where(run: Run, found: Found, where: list[dict[str, Any]]) -> list[dict[str, Any]]:
