@@ -20,7 +20,7 @@ which differs between the halves, while a sensor's gain does not.
 """
 from __future__ import annotations
 
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,27 +28,49 @@ from numpy.typing import NDArray
 from preisach.diagnose.effects import rmse
 from preisach.diagnose.initial import swept
 
+Params = tuple[float, ...]
+
+
+def _halves(u: NDArray[np.float64]) -> Optional[tuple[slice, slice]]:
+    """The two halves of the record's part after its input swept its range (history
+    wiped out), or None when that part is too short to tell anything."""
+    k = swept(u)
+    if u.size - k < 64:
+        return None
+    m = k + (u.size - k) // 2
+    return slice(k, m), slice(m, None)
+
+
+def _cross_fitted(fit: Callable[[slice], Params], error: Callable[[Params, slice], NDArray[np.float64]],
+                  halves: tuple[slice, slice]) -> tuple[Params, Params, NDArray[np.float64]]:
+    """The parameters ``fit`` finds on each half, and the record's error (``error``)
+    with them cross-fitted: each half with the other's, the samples before the halves
+    with their mean."""
+    a, b = halves
+    pa, pb = fit(a), fit(b)
+    out = error(tuple(0.5 * (x + y) for x, y in zip(pa, pb)), slice(None))
+    out[a] = error(pb, a)
+    out[b] = error(pa, b)
+    return pa, pb, out
+
+
+def _each_half_shrinks(out: NDArray[np.float64], base: NDArray[np.float64], halves: tuple[slice, slice]) -> bool:
+    """Each half's error with the other half's fit is a tenth below ``base``'s."""
+    return all(rmse(out[s]) <= 0.9 * rmse(base[s]) for s in halves)
+
 
 def record_offset(err: NDArray[np.float64], u: NDArray[np.float64], floor: float
                   ) -> Optional[tuple[float, NDArray[np.float64]]]:
     """The record's offset (measured minus chain; ``err`` is chain minus measured) and
     its error with the offset cross-fitted, or None when the evidence does not hold."""
-    k = swept(u)
-    part = err[k:]
-    if part.size < 64:
+    halves = _halves(u)
+    if halves is None:
         return None
-    m = k + part.size // 2
-    a, b = err[k:m], err[m:]
-    oa, ob = -float(np.mean(a)), -float(np.mean(b))
+    (oa,), (ob,), out = _cross_fitted(lambda s: (-float(np.mean(err[s])),), lambda p, s: err[s] + p[0], halves)
     o = 0.5 * (oa + ob)
     if abs(oa - ob) > 0.25 * max(abs(oa), abs(ob)) or abs(o) <= floor:
         return None
-    if rmse(b + oa) > 0.9 * rmse(b) or rmse(a + ob) > 0.9 * rmse(a):
-        return None
-    out = err + o
-    out[k:m] = a + ob
-    out[m:] = b + oa
-    return o, out
+    return (o, out) if _each_half_shrinks(out, err, halves) else None
 
 
 def record_gain(err: NDArray[np.float64], y: NDArray[np.float64], u: NDArray[np.float64], floor: float,
@@ -59,26 +81,20 @@ def record_gain(err: NDArray[np.float64], y: NDArray[np.float64], u: NDArray[np.
     agree on the gain within a quarter of its distance from 1, each half's fit shrinks
     the other half's error by a tenth against ``base``, and the gain moves the output by
     more than the floor."""
-    k = swept(u)
+    halves = _halves(u)
+    if halves is None:
+        return None
     c = err + y  # the chain's output
-    if c.size - k < 64:
-        return None
-    m = k + (c.size - k) // 2
-    fits = []
-    for s in (slice(k, m), slice(m, None)):
-        a = np.column_stack([c[s], np.ones(c[s].size)])
-        fits.append(np.linalg.lstsq(a, y[s], rcond=None)[0])
-    (ga, oa), (gb, ob) = fits
+
+    def fit(s: slice) -> Params:
+        g, o = np.linalg.lstsq(np.column_stack([c[s], np.ones(c[s].size)]), y[s], rcond=None)[0]
+        return float(g), float(o)
+
+    (ga, oa), (gb, ob), out = _cross_fitted(fit, lambda p, s: p[0] * c[s] + p[1] - y[s], halves)
     g, o = 0.5 * (ga + gb), 0.5 * (oa + ob)
-    if abs(ga - gb) > 0.25 * max(abs(ga - 1), abs(gb - 1)) or abs(g - 1) * float(np.std(c[k:])) <= floor:
+    if abs(ga - gb) > 0.25 * max(abs(ga - 1), abs(gb - 1)) or abs(g - 1) * float(np.std(c[halves[0].start:])) <= floor:
         return None
-    out = g * c + o - y
-    out[k:m] = gb * c[k:m] + ob - y[k:m]
-    out[m:] = ga * c[m:] + oa - y[m:]
-    for s in (slice(k, m), slice(m, None)):
-        if rmse(out[s]) > 0.9 * rmse(base[s]):
-            return None
-    return g, o, out
+    return (g, o, out) if _each_half_shrinks(out, base, halves) else None
 
 
 def offsets(errs: list[NDArray[np.float64]], outputs: list[NDArray[np.float64]],
