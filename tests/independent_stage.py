@@ -94,6 +94,14 @@ def simulate(h_model: PreisachModel, eff: dict[str, dict[str, Any]], t: np.ndarr
     return x + noise * rng.standard_normal(x.size)
 
 
+def delay_seen(params: dict[str, dict[str, Any]], fs: float) -> float:
+    """The delay a chain of the stage's effects as continuous blocks needs (the truth a
+    found delay is compared with): the stage's delay, plus half a sample when it has a
+    mode (the zero-order-hold discretization is the continuous mode driven by a held
+    input, which lags by half a sample at every frequency)."""
+    return float(params["delay"]["delay_s"]) + (0.5 / fs if "vibration" in params else 0.0)
+
+
 def waveform(kind: str, fs: float, dur: float, rng: np.random.Generator) -> np.ndarray:
     """Input signals: a reversal-rich training sweep, sines, triangles, steps with dwell."""
     t = np.arange(int(round(dur * fs))) / fs

@@ -12,7 +12,8 @@ conventions, so a method that only works on the project's own simulator fails he
   mechanical modes, the sensor's filter, the anti-aliasing filter) is a continuous-time
   system discretized by SciPy on a grid ``OVERSAMPLE`` times finer than the capture.
   The DAC holds each command for one sample period; the ADC samples at the tick, before
-  that tick's command acts (a capture's one-sample latency), adds white noise and a slow
+  that tick's command acts (a step shows one sample late; the held staircase lags a
+  smooth command by half a sample: ``Rig.timing_s``), adds white noise and a slow
   record-to-record wander (the repeatability floor), and quantizes to 16 bits.
 - **History before the record**: the stage rested at a level (by default the first
   command; a capture that starts with a step from rest has another), after a history of
@@ -141,11 +142,18 @@ class Rig:
     drift_gain_per_s: float = 0.0
     drift_offset_per_s: float = 0.0
 
-    def timing_s(self, fs: float) -> float:
-        """The capture's own low-frequency lag, seconds: the one-sample ADC latency, half
-        a sample of the DAC's hold, the group delays of the amplifier and the
-        anti-aliasing filter (what a delay fitted on a "none" stage approaches)."""
-        return 1.5 / fs + 1.0 / (2 * math.pi * self.amp_hz) + math.sqrt(2.0) / (2 * math.pi * self.aa_hz)
+    def timing_s(self, fs: float, modes: bool = True) -> float:
+        """The capture's own low-frequency lag, seconds (what a delay fitted on a "none"
+        stage approaches): half a sample of the DAC's hold (the ADC reads at the tick,
+        before that tick's command acts, so a step shows one sample late; the held
+        staircase lags a smooth command by half a sample), the group delays of the
+        amplifier, the modes (``2 zeta / omega_0`` each; ``modes=False`` leaves them out:
+        a chain that carries the stage's mode carries its lag) and the anti-aliasing
+        filter."""
+        lag = 0.5 / fs + 1.0 / (2 * math.pi * self.amp_hz) + math.sqrt(2.0) / (2 * math.pi * self.aa_hz)
+        if modes:
+            lag += sum(2 * z / (2 * math.pi * f) for f, z in self.modes)
+        return lag
 
     def _analog(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """The linear parts behind the hysteresis, as analog (b, a), in signal order."""
@@ -352,8 +360,9 @@ def make_case(name: str, seed: int, fs: float = 10e3) -> dict[str, Any]:
     truth = {"effects": effects, "dominant": effects[0] if effects else "none", "class": name,
              "modes": rig.modes if "vibration" in effects else [],
              "delay_s": (rig.delays.get("delayed") if only == "delay" else rig.delays["clean"]),
-             "timing_s": rig.timing_s(fs), "creep": rig.creep, "lowpass": rig.lowpass, "noise_std": rig.noise_std,
-             "wander_std": rig.wander_std, "records": [r["truth"] for r in recs]}
+             # (A chain that carries the mode carries its lag: the delay found is the rest.)
+             "timing_s": rig.timing_s(fs, modes="vibration" not in effects),
+             "creep": rig.creep, "lowpass": rig.lowpass, "noise_std": rig.noise_std, "wander_std": rig.wander_std, "records": [r["truth"] for r in recs]}
     return {"name": name, "seed": seed, "fs": fs, "rig": rig, "truth": truth,
             "train": recs[0], "holdouts": recs[1:3], "blind": recs[3]}
 

@@ -75,14 +75,16 @@ def _detected(rep):
 
 @pytest.mark.parametrize("seed", [4716, pytest.param(4717, marks=pytest.mark.xfail(
     strict=True, reason="a known failure: a second-order 1.28 kHz low-pass at 10 kHz, whose group delay (0.18 ms) "
-    "is shorter than two samples, is found as a delay of its lag and the capture's"))])
+    "is shorter than two samples, is found as a delay of its lag and the capture's: the chain with the true "
+    "low-pass scores worse on the holdouts, by the steps record's first level alone (set by masses that only the "
+    "training record's lowest samples reach, which the two chains fit differently)"))])
 def test_a_lowpass_on_the_rig_is_found_at_its_order_and_cutoff(seed):
     """The rig's ``lowpass`` class (a random 300-1500 Hz Butterworth of order 1 or 2 behind
-    the capture's own lag of about two samples; the training record a slow sine, which
+    the capture's own lag of under two samples; the training record a slow sine, which
     shows either only as a lag): the holdouts' steps and faster sines choose the order
     and the low-pass's share of the lag. Found as the dominant effect at its order, the
-    cutoff within 25 % (the capture's lag, a little over two samples, is shared between
-    the delay and the low-pass), no delay detected."""
+    cutoff within 25 % (the capture's lag, about 1.7 samples, is shared between the delay
+    and the low-pass), no delay detected."""
     import rig
 
     case = rig.make_case("lowpass", seed)
