@@ -11,6 +11,7 @@ import rig
 from hypothesis import given
 from hypothesis import strategies as hs
 from lti_reference import lsim_reference
+
 from preisach import PreisachModel
 from preisach.chain import Chain
 from preisach.diagnose import diagnose
