@@ -714,6 +714,7 @@ class Fitter:
             found: list[tuple[str, float, int]] = [("delay", 0.0, 0)]
             masks: dict[tuple[float, float], NDArray[np.intp]] = {}
             phc: dict[tuple[float, float], NDArray[np.complex128]] = {}
+            power: dict[tuple[float, float], tuple[NDArray[np.float64], float]] = {}
 
             def band_err(p: Optional[dict[str, Any]], m: tuple[float, float]) -> float:
                 # The mode's analog response times the rest of the chain's spectrum (the
@@ -734,7 +735,16 @@ class Fitter:
                     P = B[mk]  # no mode: the band error to compare with
                 else:
                     P = _response({"vibration": p}, f[mk]) * B[mk]
-                errs = np.sum(np.abs(P[None, :] * phc[m] - Y[mk][None, :]) ** 2, axis=1)
+                if nuisance:
+                    # sum |P h - Y|^2 for every nuisance's response h, as matrix products:
+                    # |h|^2 |P|^2 - 2 Re(h P conj(Y)) + |Y|^2, summed over the band.
+                    if m not in power:
+                        power[m] = (np.abs(phc[m]) ** 2, float(np.sum(np.abs(Y[mk]) ** 2)))
+                    h2, y2 = power[m]
+                    q = P * np.conj(Y[mk])
+                    errs = h2 @ (P.real ** 2 + P.imag ** 2) - 2.0 * (phc[m].real @ q.real - phc[m].imag @ q.imag) + y2
+                else:
+                    errs = np.array([np.sum(np.abs(P - Y[mk]) ** 2)])
                 k = int(np.argmin(errs))
                 if nuisance and k < dgrid.size:
                     found[0] = ("delay", float(dgrid[k]), 0)
