@@ -269,3 +269,49 @@ def test_refit_masses_without_a_baseline_is_a_one_line_error(tmp_path, capsys):
                  str(tmp_path / "r.json"), "--refit-masses"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code != 0 and len(err) == 1 and "--refit-masses" in err[0] and "--baseline" in err[0]
+
+
+def test_a_chain_is_fitted_with_masses_ge_0_and_scored_once(monkeypatch):
+    """A chain's exact fit (masses >= 0) is solved once however often it is asked for (a
+    search that chooses on the holdouts states the chain it returns too): the same model,
+    its effects in the caller's order and the caller's own copy; a fitter whose record
+    starts from rest (``rest``) and another grid solve anew. A chain's holdout score is
+    computed once per chain (its model and every parameter), returned as a copy. On the
+    project's simulated stage."""
+    from types import SimpleNamespace
+
+    from preisach.diagnose.effects import FitState
+    from preisach.diagnose.search import Fitter
+    from preisach.sim import Stage
+
+    rng = np.random.default_rng(5)
+    stage = Stage.preset("paper", creep=False, resonance_hz=900.0, damping=0.03, seed=5)
+    tr = _paper_stage_records(stage, 50e3, rng)[0]
+    rec = Record("train", tr["t"], tr["u"], tr["y"], 1 / 50e3)
+    fitter = Fitter(rec, 10, (float(tr["u"].min()) - 0.4, float(tr["u"].max()) + 0.4), stride=8)
+    solves = []
+    solve = Fitter._solve
+    monkeypatch.setattr(Fitter, "_solve", lambda self, pb, nnls=False: solves.append(nnls) or solve(self, pb, nnls))
+    e1 = {"vibration": {"frequency_hz": 900.0, "damping": 0.03}, "delay": {"delay_s": 1e-4}}
+    e2 = {"delay": {"delay_s": 1e-4}, "vibration": {"frequency_hz": 900.0, "damping": 0.03}}
+    s1, s2 = fitter.state(e1), fitter.state(e2)
+    assert solves == [True] and s2.model is s1.model and s2.train_rmse == s1.train_rmse
+    assert list(s1.effects) == list(e1) and list(s2.effects) == list(e2)
+    np.testing.assert_array_equal(s1.predict(rec), s2.predict(rec))
+    s2.effects["delay"]["delay_s"] = 5e-4  # the caller's copy
+    assert fitter.state(e1).effects["delay"]["delay_s"] == 1e-4 and solves == [True]
+    assert fitter.state(dict(e1, delay={"delay_s": 2e-4})).model is not s1.model and len(solves) == 2
+    fitter.rest = True
+    assert fitter.state(e1).model is not s1.model and len(solves) == 3
+    s8 = fitter.state(e1, n_h=8)
+    assert s8.model.n_h == 8 and fitter.state(e1, n_h=8).model is s8.model and len(solves) == 4
+
+    scored = []
+    run = SimpleNamespace(_scores={}, halves=[(slice(0, 3), slice(3, None))],
+                          holdout_errors=lambda st: scored.append(st) or [np.ones(6)])
+    run.parts_of = lambda es: steps.Run.parts_of(run, es)
+    sc, parts = steps.Run.score_parts(run, s1)
+    parts[0] = -1.0
+    assert steps.Run.score_parts(run, FitState(s1.model, dict(e1)))[1].tolist() == [1.0, 1.0] and len(scored) == 1
+    steps.Run.score_parts(run, FitState(s1.model, dict(e1, delay={"delay_s": 2e-4})))
+    assert len(scored) == 2
