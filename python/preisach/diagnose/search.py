@@ -232,7 +232,6 @@ class Fitter:
         self._lock = threading.Lock()
         self._memo: dict[tuple[Any, ...], tuple[float, list[float]]] = {}
         self._columns: dict[tuple[Any, ...], Optional[NDArray[np.float64]]] = {}
-        self._states: dict[tuple[Any, ...], FitState] = {}
         self.evaluations = 0
         self._u = np.ascontiguousarray(rec.u, dtype=np.float64)
         # The averaged record the chains are fitted to.
@@ -381,28 +380,18 @@ class Fitter:
     def state(self, eff: Effects, n_h: Optional[int] = None) -> FitState:
         """The chain with masses >= 0 (exact NNLS projection; the masses the record does
         not identify zero, ``preisach.diagnose.identified``) and its linear coefficients
-        refitted with them; once per chain (kept by its effects, ``n_h`` and ``rest``)."""
-        key = (n_h or self.n_h, self.rest, _key(eff))
-        with self._lock:
-            known = self._states.get(key)
-        if known is not None:
-            # Kept (a search that scores chains on the holdouts states the one it returns
-            # too); its effects in the order the caller gave them.
-            return FitState(known.model, {k: dict(known.effects[k]) for k in eff}, known.train_rmse)
+        refitted with them."""
         if n_h is not None and n_h != self.n_h:
             other = Fitter(self.rec, n_h, self.u_range, self.stride, self.tol, self.trials, self.ranges)
             other.rest = self.rest
-            st = other.state(eff)
-        else:
-            pb = self._problem(eff)
-            res = self._solve(pb, nnls=True)
-            model = identified(PreisachModel._wrap(res["model"], "interpolated"), self._u)
-            e = self._linear(eff, res["extra_nnls"])
-            st = FitState(model, e)
-            st.train_rmse = rmse(self.predict(st) - self.y)
-        with self._lock:
-            self._states[key] = st
-        return FitState(st.model, {k: dict(v) for k, v in st.effects.items()}, st.train_rmse)
+            return other.state(eff)
+        pb = self._problem(eff)
+        res = self._solve(pb, nnls=True)
+        model = identified(PreisachModel._wrap(res["model"], "interpolated"), self._u)
+        e = self._linear(eff, res["extra_nnls"])
+        st = FitState(model, e)
+        st.train_rmse = rmse(self.predict(st) - self.y)
+        return st
 
     # -- one-dimensional searches on J ----------------------------------------------
     def line(self, eff: Effects, name: str, key: str, scale: float = 1.0, refine: int = 2) -> tuple[Effects, float]:

@@ -79,9 +79,6 @@ class Run:
     #: simulator's output as their input), and how its masses were treated.
     original: Optional[list[Record]] = None
     masses: str = ""
-    #: ``score_parts`` by chain (its masses' identity and every effect parameter), with the
-    #: chain kept alive so that the identity stays its own.
-    _scores: dict[Any, tuple[FitState, tuple[float, np.ndarray]]] = field(default_factory=dict)
 
     @property
     def recs(self) -> list[Record]:
@@ -136,15 +133,8 @@ class Run:
 
     def score_parts(self, st: FitState) -> tuple[float, np.ndarray]:
         """Holdout RMSE overall and on each half of each holdout (the acceptance rule
-        asks an effect to help on every part, not just on average); once per chain (a
-        search that scores chains on the holdouts scores the one it returns too)."""
-        key = (id(st.model), repr(sorted((k, sorted(p.items())) for k, p in st.effects.items())))
-        known = self._scores.get(key)
-        if known is not None:
-            return known[1][0], known[1][1].copy()
-        out = self.parts_of(self.holdout_errors(st))
-        self._scores[key] = (st, out)
-        return out[0], out[1].copy()
+        asks an effect to help on every part, not just on average)."""
+        return self.parts_of(self.holdout_errors(st))
 
     def score(self, st: FitState) -> float:
         return self.score_parts(st)[0]
