@@ -6,6 +6,8 @@ import json
 import independent_stage as bv
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as hs
 from lti_reference import tf_lowpass, tf_mode
 from scipy import signal
 
@@ -265,6 +267,34 @@ def test_parabolic_search_finds_smooth_and_kinked_minima_in_few_evaluations():
     assert abs(x - 0.62) < 0.03
     x, _ = _grid_then_parabola(lambda g: (g + 0.013) ** 2, np.linspace(-0.1, 0.1, 7))
     assert abs(x + 0.013) < 1e-6
+
+
+@given(hs.integers(10, 24), hs.floats(-0.3, 1.3), hs.floats(0.25, 1.0), hs.floats(-0.9, 0.9),
+       hs.floats(-0.3, 1.3), hs.floats(0.5, 3.0))
+def test_a_grid_coarse_first_chooses_as_the_whole_grid_when_minima_are_wide(m, c1, w1, a2, c2, p):
+    """Every other grid point first, then the best one's neighbours: on an error whose
+    every minimum is wider than two grid steps (two smooth wells and a tilt, random), the
+    same point and value as the whole grid, in fewer evaluations; and on a wide well alone
+    the minimum itself (a brute-force scan)."""
+    from preisach.diagnose.effects import _grid_coarse_first, _grid_then_parabola
+
+    grid = np.linspace(0.0, 1.0, m)
+    w = max(w1, 4.0 / (m - 1))  # wider than two grid steps
+
+    def f(x, calls):
+        calls.append(x)
+        return float(-np.exp(-abs((x - c1) / w) ** (1 + p)) + a2 * np.exp(-((x - c2) / w) ** 2) + 0.05 * x)
+
+    whole, coarse = [], []
+    x1, f1 = _grid_then_parabola(lambda x: f(x, whole), grid)
+    x2, f2 = _grid_coarse_first(lambda x: f(x, coarse), grid)
+    scan = np.linspace(0.0, 1.0, 20001)
+    vals = np.array([f(x, []) for x in scan])
+    if np.sum((vals[1:-1] < vals[:-2]) & (vals[1:-1] < vals[2:])) <= 1:
+        # One minimum: both land on it (within the grid's parabolic steps).
+        assert abs(x2 - scan[int(np.argmin(vals))]) <= 1.0 / (m - 1)
+    assert (x2, f2) == (x1, f1)
+    assert len(set(coarse)) < len(set(whole))
 
 
 def test_trials_run_in_parallel_only_while_a_cpu_idles_and_nest_inline():

@@ -8,12 +8,15 @@ import independent_stage as bv
 import numpy as np
 import pytest
 import rig
+from hypothesis import given
+from hypothesis import strategies as hs
+from lti_reference import lsim_reference
 
 from preisach import PreisachModel
 from preisach.chain import Chain
 from preisach.diagnose import diagnose
 from preisach.diagnose.effects import Record, rmse
-from preisach.diagnose.search import Fitter
+from preisach.diagnose.search import Fitter, _creep_columns, window_mean
 from preisach.sim import Stage, hysteresis_block
 
 
@@ -125,3 +128,32 @@ def test_rig_without_creep_gets_no_creep():
     """The rig's `none` class (seed 1): whatever else is found there, not creep."""
     _, rep = _rig_case("none", 1)
     assert "creep" not in {e["name"] for e in rep.effects if e["detected"]}
+
+
+@given(hs.integers(0, 2**32 - 1), hs.floats(-3.0, 4.0), hs.integers(1, 40), hs.integers(1, 3000),
+       hs.floats(1e3, 2e5), hs.floats(0.0, 50.0))
+def test_creep_columns_are_the_full_rate_response_window_averaged(seed, log_tau_samples, k, n, fs, t0):
+    """``calibrate_slow``'s creep columns (the element's response ``LP[x] - x`` and the
+    same times the time, averaged over windows of ``k`` samples), computed without the
+    full-rate response, are that response averaged: against the exact response of the
+    transfer function to the input linear between samples (SciPy's ``lsim``, at rest with
+    the first sample) and the chain's own creep block, on random inputs (a random walk
+    and a sine), time constants from a thousandth of a sample to ten thousand samples,
+    window lengths and record lengths (shorter than a window too)."""
+    rng = np.random.default_rng(seed)
+    dt = 1.0 / fs
+    tau = dt * 10.0 ** log_tau_samples
+    t = t0 + np.arange(n + k - 1) * dt
+    x = np.cumsum(rng.standard_normal(t.size)) * rng.uniform(0.01, 1.0) + np.sin(2 * np.pi * rng.uniform(1, 50) * t)
+    rec = Record("r", t, x, x, dt)
+    col, tcol = _creep_columns(x, rec, tau, k, True, None)
+    if t.size < 2:
+        return
+    oracles = [lsim_reference([1.0], [tau, 1.0], t, x),  # 1 / (1 + s tau)
+               Chain(None, {"creep": {"taus_s": [tau], "amplitudes": [1.0], "normalized": True}}).predict(t, x)]
+    for w in oracles:
+        r = w - x
+        scale = 1e-9 * (np.max(np.abs(x)) + 1.0)
+        np.testing.assert_allclose(col, window_mean(r, k), rtol=0, atol=scale)
+        np.testing.assert_allclose(tcol, window_mean(r * t, k), rtol=0, atol=scale * (t0 + t[-1] - t[0] + 1.0))
+    assert col.size == t.size // k and _creep_columns(x, rec, tau, k, False, None)[1] is None

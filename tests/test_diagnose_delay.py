@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from preisach.chain import Chain
 from preisach.diagnose import diagnose
-from preisach.diagnose.crossfit import _fit_delay, holdout_delay, profiles, shifted, shifted_sse
+from preisach.diagnose.crossfit import _fit_delay, distinct, holdout_delay, profiles, shifted, shifted_sse
 from preisach.diagnose.effects import FitState, Record, _grid_then_parabola
 from preisach.diagnose.ranges import Bound, delay_grid
 from preisach.diagnose.search import Fitter
@@ -179,6 +179,21 @@ def test_the_shifted_errors_are_those_of_the_shifted_rows(samples, n, seed, cut)
     sl = (slice(None), slice(0, n // 2), slice(n // 2, None), slice(n // 3, n - 3))[cut]
     ref = np.sum((shifted(rows, samples)[:, sl] - y[sl]) ** 2, axis=1)
     np.testing.assert_allclose(shifted_sse(rows, y, samples, sl), ref, rtol=1e-10, atol=1e-10)
+
+
+@given(st.integers(0, 2**31 - 1), st.integers(1, 12), st.integers(1, 6), st.floats(0.0, 30.0))
+def test_repeated_profiles_are_dropped_and_the_least_error_stays(seed, n_rows, n_kinds, samples):
+    """``distinct``: every row kept once, in the order of its first appearance (the
+    chain's output from rest stays first), and the least shifted error over the rows is
+    the same as over all of them."""
+    rng = np.random.default_rng(seed)
+    kinds = rng.standard_normal((n_kinds, 50))
+    pick = rng.integers(0, n_kinds, n_rows)
+    rows, y = kinds[pick], rng.standard_normal(50)
+    d = distinct(rows)
+    first = sorted({int(k): i for i, k in reversed(list(enumerate(pick)))}.values())
+    np.testing.assert_array_equal(d, rows[first])
+    assert np.min(shifted_sse(d, y, samples, slice(None))) == np.min(shifted_sse(rows, y, samples, slice(None)))
 
 
 def _plain_fit_delay(stt, parts, bound, outs):

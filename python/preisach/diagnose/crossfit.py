@@ -59,6 +59,19 @@ def profiles(st: FitState, rec: Record) -> NDArray[np.float64]:
     return np.array([predict_from(bare, rec, ex) for ex in [None] + staircases(bare)])
 
 
+def distinct(rows: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The rows without repeats, in their order (starting staircases that leave a record's
+    output the same: the least error over the rows is the same)."""
+    seen: set[bytes] = set()
+    keep = []
+    for i, r in enumerate(rows):
+        b = r.tobytes()
+        if b not in seen:
+            seen.add(b)
+            keep.append(i)
+    return rows if len(keep) == rows.shape[0] else rows[keep]
+
+
 def shifted_sse(rows: NDArray[np.float64], y: NDArray[np.float64], samples: float,
                 sl: slice) -> NDArray[np.float64]:
     """Per row, the sum of squares of ``shifted(rows, samples)[:, sl] - y[sl]``, without
@@ -123,7 +136,7 @@ def holdout_delay(st: FitState, hos: list[Record], errors: Errors, bound: Bound)
     chain, the staircases applied), ``plain`` (the same without them), ``folds`` (what
     was fitted on what, and the delay found), ``added_s`` (the delay fitted on every
     holdout, for the saved chain) and ``state`` (the chain with it)."""
-    outs = {h.name: profiles(st, h) for h in hos}
+    outs = {h.name: distinct(profiles(st, h)) for h in hos}
     memo: Memo = {}
     out = [np.empty(h.y.size) for h in hos]
     plain = [np.empty(h.y.size) for h in hos]

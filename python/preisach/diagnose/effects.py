@@ -142,6 +142,22 @@ def _grid_then_parabola(f: Callable[[float], float], grid: NDArray[np.float64], 
     return _parabolic_search(f, [], float(grid[0]), float(grid[-1]), refine=refine, expand=0, known=known)
 
 
+def _grid_coarse_first(f: Callable[[float], float], grid: NDArray[np.float64], refine: int = 3,
+                       fmany: Optional[Callable[[list[float]], list[float]]] = None) -> tuple[float, float]:
+    """``_grid_then_parabola`` for an error that varies slowly over two grid steps: every
+    other grid point first (both ends included), then the two points beside the best of
+    them, then the parabolic steps around the best. The same choice as the whole grid
+    unless a minimum is narrower than two grid steps; about a third fewer evaluations."""
+    xs = [float(x) for x in grid]
+    idx = sorted(set(range(0, len(xs), 2)) | {len(xs) - 1})
+    first = [xs[i] for i in idx]
+    known = dict(zip(first, fmany(first) if fmany is not None else [f(x) for x in first]))
+    b = xs.index(min(known, key=known.__getitem__))
+    near = [xs[i] for i in (b - 1, b + 1) if 0 <= i < len(xs) and xs[i] not in known]
+    known.update(zip(near, fmany(near) if fmany is not None and len(near) > 1 else [f(x) for x in near]))
+    return _parabolic_search(f, [], xs[0], xs[-1], refine=refine, expand=0, known=known)
+
+
 def _mode_guess(r: NDArray[np.float64], dt: float, k: int = 3) -> list[float]:
     """Frequencies of the ``k`` largest peaks of the residual spectrum above 300 Hz
     (below that, harmonics of the drive signal dominate the residual)."""

@@ -32,6 +32,7 @@ from preisach.chain import Chain
 from preisach.diagnose.effects import (
     FitState,
     Record,
+    _grid_coarse_first,
     _grid_then_parabola,
     _mode_guess,
     _parabolic_search,
@@ -497,7 +498,9 @@ class Fitter:
                     return e
                 grid = np.log(np.geomspace(bc.lo, bc.hi, max(10, int(round(1.5 * math.log2(bc.hi / bc.lo))))))
                 f, fm = self.along(lp)
-                lf, fx = _grid_then_parabola(f, grid, fmany=fm)
+                # (Every other cutoff first: the error changes slowly over two grid steps,
+                # a factor 2.5 of the cutoff.)
+                lf, fx = _grid_coarse_first(f, grid, fmany=fm)
                 if best is None or fx < best[1]:
                     best = (lf, fx, order)
             assert best is not None
@@ -700,6 +703,7 @@ class Fitter:
             found: list[tuple[str, float, int]] = [("delay", 0.0, 0)]
             masks: dict[tuple[float, float], NDArray[np.intp]] = {}
             phc: dict[tuple[float, float], NDArray[np.complex128]] = {}
+            power: dict[tuple[float, float], tuple[NDArray[np.float64], float]] = {}
 
             def band_err(p: Optional[dict[str, Any]], m: tuple[float, float]) -> float:
                 # The mode's analog response times the rest of the chain's spectrum (the
@@ -720,7 +724,16 @@ class Fitter:
                     P = B[mk]  # no mode: the band error to compare with
                 else:
                     P = _response({"vibration": p}, f[mk]) * B[mk]
-                errs = np.sum(np.abs(P[None, :] * phc[m] - Y[mk][None, :]) ** 2, axis=1)
+                if nuisance:
+                    # sum |P h - Y|^2 for every nuisance's response h, as matrix products:
+                    # |h|^2 |P|^2 - 2 Re(h P conj(Y)) + |Y|^2, summed over the band.
+                    if m not in power:
+                        power[m] = (np.abs(phc[m]) ** 2, float(np.sum(np.abs(Y[mk]) ** 2)))
+                    h2, y2 = power[m]
+                    q = P * np.conj(Y[mk])
+                    errs = h2 @ (P.real ** 2 + P.imag ** 2) - 2.0 * (phc[m].real @ q.real - phc[m].imag @ q.imag) + y2
+                else:
+                    errs = np.array([np.sum(np.abs(P - Y[mk]) ** 2)])
                 k = int(np.argmin(errs))
                 if nuisance and k < dgrid.size:
                     found[0] = ("delay", float(dgrid[k]), 0)
@@ -921,21 +934,93 @@ def _creep_columns(x: NDArray[np.float64], rec: Record, tau: float, k: int, drif
     """The creep element's response ``LP_tau[x] - x`` on the whole of ``rec`` averaged
     over windows of ``k`` samples, and (with a drift) the same times the record's time;
     stored in ``cache`` by record and time constant (the folds of a chain's calibration
-    take the same columns on other parts of the records)."""
+    take the same columns on other parts of the records). Computed from the window sums
+    of the full-rate recursion (``lp_window_sums``): the same numbers as the full-rate
+    response averaged, up to rounding."""
     key = (id(rec), tau, k, drift)
     if cache is not None and key in cache:
         return cache[key]  # type: ignore[no-any-return]
-    r = _lp(x, tau, rec.t) - x
-    out = (window_mean(r, k), window_mean(r * rec.t, k) if drift else None)
+    s0, s1 = lp_window_sums(x, tau, rec.dt, k)
+    xk = (id(rec), "x", k, drift)
+    if cache is not None and xk in cache:
+        xm, xtm = cache[xk]
+    else:
+        xm, xtm = window_mean(x, k), (window_mean(x * rec.t, k) if drift else None)
+        if cache is not None:
+            cache[xk] = (xm, xtm)
+    col = s0 / k - xm
+    tcol = None
+    if drift:
+        # The window's times are its first sample's plus whole samples (the sampling is regular).
+        t0 = rec.t[:s0.size * k:k]
+        tcol = (t0 * s0 + rec.dt * s1) / k - xtm
+    out = (col, tcol)
     if cache is not None:
         cache[key] = out
     return out
 
 
-def _lp(x: NDArray[np.float64], tau: float, t: NDArray[np.float64]) -> NDArray[np.float64]:
-    """First-order low-pass ``1 / (1 + s tau)`` (DC gain 1), at rest at the start: a
-    normalized creep element of amplitude 1."""
-    return _run({"creep": {"taus_s": [tau], "amplitudes": [1.0], "normalized": True}}, t, x)
+def lp_window_sums(x: NDArray[np.float64], tau: float, dt: float,
+                   k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Window sums of a first-order low-pass's response ``w = LP_tau[x]`` (DC gain 1, at
+    rest with ``x[0]``; sampled as the chain samples it, exact for ``x`` linear between
+    samples), over windows of ``k`` samples (the last partial one dropped): ``sum_m w_m``
+    and ``sum_m m w_m`` (``m`` the sample's place in its window), without the full-rate
+    response. Per sample ``w_n = a w_{n-1} + f_n`` with ``f_n = b0 x_{n-1} + b1 x_n``;
+    within a window every ``w_m`` is the state before the window times ``a^(m+1)`` plus
+    the window's own ``f`` weighted by powers of ``a``, so the sums and the next state
+    are fixed weights on each window's ``f`` (matrix products) and the state runs over
+    the windows only (a first-order recursion, by cumulative sums in blocks short
+    enough that the powers of ``a`` stay finite)."""
+    n = x.size // k
+    h = dt / tau
+    # The exact integrals of the hold's two ramps (as the chain's first-order hold).
+    if h < 1e-4:
+        phi1, phi2 = 1.0 - h / 2 + h * h / 6, 0.5 - h / 6 + h * h / 24
+    else:
+        em1 = math.expm1(-h)
+        phi1, phi2 = -em1 / h, (em1 + h) / (h * h)
+    b0, b1 = h * (phi1 - phi2), h * phi2
+    xs = x[:n * k]
+    f = np.empty(n * k)
+    if n == 0:
+        return f, f
+    f[0] = -math.expm1(-h) * xs[0]  # at rest: the state before the record is x[0]
+    g = f[1:]  # b0 x[n-1] + b1 x[n], in place (no full-rate temporaries)
+    g[:] = xs[:-1]
+    g *= b0 / b1
+    g += xs[1:]
+    g *= b1
+    F = f.reshape(n, k)
+    m = np.arange(k, dtype=np.float64)
+    lag = np.subtract.outer(m, m)
+    L = np.tril(np.exp(-h * np.maximum(lag, 0.0)))  # L[m, i] = a^(m - i), i <= m
+    pw = np.exp(-h * (m + 1.0))  # the state before the window, at each sample
+    s = _first_order_states(h * k, F @ L[k - 1], float(xs[0]))
+    return s * pw.sum() + F @ L.sum(axis=0), s * float(m @ pw) + F @ (m @ L)
+
+
+def _first_order_states(hk: float, E: NDArray[np.float64], s0: float) -> NDArray[np.float64]:
+    """``s_0 = s0``, ``s_{j+1} = A s_j + E_j`` with ``A = e^-hk``: the states ``s_0 ..
+    s_{n-1}`` for ``n = E.size``, by cumulative sums of ``E_i / A^(i+1)`` in blocks over
+    which ``1 / A`` to the block's length stays below ``e^300`` (``A`` below ``e^-300``
+    forgets the state at once)."""
+    n = E.size
+    out = np.empty(n)
+    out[0] = s0
+    if hk > 300.0:
+        out[1:] = E[:-1]
+        return out
+    A = math.exp(-hk)
+    step = max(1, int(300.0 / max(hk, 1e-300)))
+    s = s0
+    for j in range(0, n, step):
+        e = E[j:j + step]
+        Aq = np.exp(-hk * np.arange(e.size, dtype=np.float64))
+        acc = np.cumsum(e / (Aq * A))
+        out[j:j + e.size] = Aq * (s + np.concatenate([[0.0], acc[:-1]]))
+        s = Aq[-1] * A * (s + acc[-1])
+    return out
 
 
 def _run(effects: Effects, t: NDArray[np.float64], x: NDArray[np.float64]) -> NDArray[np.float64]:
