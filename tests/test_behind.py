@@ -105,6 +105,39 @@ def test_noise_free_chain_is_recovered_with_masses_nonnegative():
     assert m.offset == pytest.approx(0.3, abs=1e-6)
 
 
+def _walk(n=6000, seed=0):
+    """A random walk with jumps, reaching beyond the range."""
+    rng = np.random.default_rng(seed)
+    steps = np.where(rng.uniform(size=n) < 0.01, rng.uniform(-0.6, 0.6, n), rng.normal(0, 0.01, n))
+    return np.arange(n) * DT, np.clip(0.5 + np.cumsum(steps), -0.1, 1.1)
+
+
+@pytest.mark.parametrize("source,effects", [
+    (_input, {"vibration": {"frequency_hz": 300.0, "damping": 0.02}}),
+    (_walk, {"lowpass": {"cutoff_hz": 500.0, "order": 2}}),
+])
+def test_masses_projection_equals_scipy_nnls_of_the_optimum_output(source, effects):
+    """The masses >= 0 (twice on one problem: the second projection reuses what the first
+    built) against scipy.optimize.nnls of the unfiltered relay columns fitted to the
+    unconstrained optimum's hysteresis output (the offset free: two signed columns)."""
+    from scipy.optimize import nnls
+    t, u = source(seed=7)
+    rng = np.random.default_rng(8)
+    b = _preisach.Behind(u, N_H, RANGE)
+    plain, A = _dense(u, {}), _dense(u, effects)
+    cols = np.column_stack([plain[:, :-1], plain[:, -1], -plain[:, -1]])
+    for k in range(2):
+        y = np.sin((6 + k) * u) - 0.5 * u + 0.05 * rng.standard_normal(u.size)
+        res = b.solve(y, DT, _blocks(effects), tol=1e-13, max_iter=5000, warm=False, nnls=True)
+        h_star = plain @ np.linalg.lstsq(A, y, rcond=None)[0]
+        want = cols @ nnls(cols, h_star, maxiter=50 * cols.shape[1])[0]
+        got = PreisachModel._wrap(res["model"], "interpolated").predict(u)
+        span = np.ptp(h_star)
+        assert np.max(np.abs(got - want)) < 1e-5 * span
+        # The bound is active (the unconstrained optimum has negative masses): the test can fail.
+        assert np.sqrt(np.mean((want - h_star) ** 2)) > 1e-4 * span
+
+
 def test_bad_arguments_are_named():
     t, u = _input(n=500)
     b = _preisach.Behind(u, N_H, RANGE)

@@ -166,3 +166,77 @@ fn fused_cascade_equals_the_blocks_one_after_the_other() {
         assert!((p - q).abs() <= 1e-12 * (1.0 + q.abs()), "{p} vs {q}");
     }
 }
+
+/// Signed masses (some negative, as an unconstrained optimum has them): the Everett
+/// values and offset of `pos − neg`, and their output on `u`.
+fn signed_solution(rng: &mut Rng, n_h: usize, u: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let (pos, neg) = (random_model(rng, n_h), random_model(rng, n_h));
+    let neg =
+        preisach_core::PreisachModel::new(neg.grid().clone(), neg.masses().iter().map(|m| 0.3 * m).collect(), 0.0)
+            .unwrap();
+    let mut x: Vec<f64> = pos.everett_values().iter().zip(neg.everett_values()).map(|(a, b)| a - b).collect();
+    x.push(pos.offset());
+    let (mut hp, mut hn) = (vec![0.0; u.len()], vec![0.0; u.len()]);
+    pos.run_interpolated(&mut pos.interp_memory(), u, &mut hp);
+    neg.run_interpolated(&mut neg.interp_memory(), u, &mut hn);
+    (x, hp.iter().zip(&hn).map(|(a, b)| a - b).collect())
+}
+
+#[test]
+fn projection_is_the_plain_fit_of_the_optimum_output() {
+    // The oracle: `fit` of the unconstrained optimum's output on the input samples (its
+    // own rows and objective), on two inputs, each with a stride of 1 and 4 (the
+    // projection is on the input samples whatever the windows); twice per problem (the
+    // second projection reuses the kept Hessian).
+    let mut rng = Rng::new(23);
+    let n = 4000;
+    let walk = random_input(&mut rng, n);
+    let sine: Vec<f64> = (0..n)
+        .map(|k| {
+            let t = k as f64 / n as f64;
+            0.5 + 1.4 * (0.2 + 0.8 * t) * (std::f64::consts::TAU * 9.0 * t).sin() + 0.05 * rng.range(-1.0, 1.0)
+        })
+        .collect();
+    let n_h = 7;
+    for (u, stride) in [(&walk, 1), (&walk, 4), (&sine, 1), (&sine, 4)] {
+        let mut b = preisach_core::identify::filtered::Behind::new(u, n_h, (-1.0, 2.0), stride).unwrap();
+        let m = b.n_samples();
+        let mut id = cascade(&[], 1e-3);
+        for _ in 0..2 {
+            let (x, h_star) = signed_solution(&mut rng, n_h, u);
+            let z: Vec<f64> = (0..m).map(|_| rng.range(-1.0, 1.0)).collect();
+            let sol = preisach_core::identify::filtered::BehindSolution {
+                x,
+                extra: vec![],
+                iterations: 0,
+                residual: 0.0,
+                rmse: 0.0,
+            };
+            let terms = preisach_core::identify::filtered::Terms::default();
+            let (model, _, _, rep) = b.project(&sol, &z, &mut id, &terms).unwrap();
+            let fo = FitOptions {
+                n_h,
+                u_range: Some((-1.0, 2.0)),
+                reg: 0.0,
+                solver: Solver::Auto,
+                interpolated: true,
+                diagonal_floor: 0.0,
+            };
+            let (plain, prep) = fit(u, &h_star, &fo).unwrap();
+            assert!(model.masses().iter().all(|&w| w >= 0.0));
+            let span = h_star.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+            // The optimum's output is unique (the masses need not be).
+            let (mut a, mut p) = (vec![0.0; u.len()], vec![0.0; u.len()]);
+            model.run_interpolated(&mut model.interp_memory(), u, &mut a);
+            plain.run_interpolated(&mut plain.interp_memory(), u, &mut p);
+            let d = a.iter().zip(&p).fold(0.0f64, |e, (x, y)| e.max((x - y).abs()));
+            assert!(d < 1e-5 * span, "outputs differ by {d} (span {span}, stride {stride})");
+            assert!(prep.rmse > 1e-3 * span, "the masses' bound is not active: rmse {}", prep.rmse);
+            assert!((rep.rmse - prep.rmse).abs() <= 1e-5 * prep.rmse, "rmse {} vs {}", rep.rmse, prep.rmse);
+            assert_eq!(
+                (rep.n_rows, rep.reversals, rep.cells_never_excited),
+                (prep.n_rows, prep.reversals, prep.cells_never_excited)
+            );
+        }
+    }
+}
