@@ -31,6 +31,18 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
+/// The plain interpolated fit on the tests' input range (no chain behind it).
+fn plain_options(n_h: usize) -> FitOptions {
+    FitOptions {
+        n_h,
+        u_range: Some((-1.0, 2.0)),
+        reg: 0.0,
+        solver: Solver::Auto,
+        interpolated: true,
+        diagonal_floor: 0.0,
+    }
+}
+
 #[test]
 fn adjoint_of_the_cascade_is_exact() {
     let mut rng = Rng::new(3);
@@ -96,15 +108,7 @@ fn fit_behind_recovers_masses_through_a_lightly_damped_mode() {
     assert!((m.offset() - truth.offset()).abs() < 1e-6 * wmax);
 
     // Ignoring the mode (the plain fit of z) is far off: the test can fail.
-    let fo = FitOptions {
-        n_h,
-        u_range: Some((-1.0, 2.0)),
-        reg: 0.0,
-        solver: Solver::Auto,
-        interpolated: true,
-        diagonal_floor: 0.0,
-    };
-    let (plain, _) = fit(&u, &z, &fo).unwrap();
+    let (plain, _) = fit(&u, &z, &plain_options(n_h)).unwrap();
     let err = plain.masses().iter().zip(truth.masses()).fold(0.0f64, |a, (x, y)| a.max((x - y).abs()));
     assert!(err > 1e-3 * wmax, "plain fit error {err}");
 }
@@ -121,15 +125,7 @@ fn fit_behind_without_blocks_is_the_plain_fit() {
     }
     let opts = BehindOptions { n_h: 6, u_range: (-1.0, 2.0), dt: 1e-3, tol: 1e-12, max_iter: 200 };
     let (m, rep) = fit_behind(&u, &y, None, &[], &opts).unwrap();
-    let fo = FitOptions {
-        n_h: 6,
-        u_range: Some((-1.0, 2.0)),
-        reg: 0.0,
-        solver: Solver::Auto,
-        interpolated: true,
-        diagonal_floor: 0.0,
-    };
-    let (_, plain) = fit(&u, &y, &fo).unwrap();
+    let (_, plain) = fit(&u, &y, &plain_options(6)).unwrap();
     assert!((rep.rmse - plain.rmse).abs() <= 1e-9 * plain.rmse, "{} vs {}", rep.rmse, plain.rmse);
     assert!(m.masses().iter().all(|&w| w >= 0.0));
 }
@@ -214,15 +210,7 @@ fn projection_is_the_plain_fit_of_the_optimum_output() {
             };
             let terms = preisach_core::identify::filtered::Terms::default();
             let (model, _, _, rep) = b.project(&sol, &z, &mut id, &terms).unwrap();
-            let fo = FitOptions {
-                n_h,
-                u_range: Some((-1.0, 2.0)),
-                reg: 0.0,
-                solver: Solver::Auto,
-                interpolated: true,
-                diagonal_floor: 0.0,
-            };
-            let (plain, prep) = fit(u, &h_star, &fo).unwrap();
+            let (plain, prep) = fit(u, &h_star, &plain_options(n_h)).unwrap();
             assert!(model.masses().iter().all(|&w| w >= 0.0));
             let span = h_star.iter().fold(0.0f64, |a, v| a.max(v.abs()));
             // The optimum's output is unique (the masses need not be).
