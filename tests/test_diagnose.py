@@ -275,8 +275,10 @@ def test_a_grid_coarse_first_chooses_as_the_whole_grid_when_minima_are_wide(m, c
     """Every other grid point first, then the best one's neighbours: on an error whose
     every minimum is wider than two grid steps (two smooth wells and a tilt, random), the
     same point and value as the whole grid, in fewer evaluations; and on a wide well alone
-    the minimum itself (a brute-force scan)."""
-    from preisach.diagnose.effects import _grid_coarse_first, _grid_then_parabola
+    the minimum itself (a brute-force scan). The evaluations, in order: the whole grid (or
+    every other point, both ends included, at once), the best coarse point's two
+    neighbours (at once), then at most ``refine`` parabolic steps."""
+    from preisach.diagnose.effects import _grid_then_parabola
 
     grid = np.linspace(0.0, 1.0, m)
     w = max(w1, 4.0 / (m - 1))  # wider than two grid steps
@@ -285,15 +287,27 @@ def test_a_grid_coarse_first_chooses_as_the_whole_grid_when_minima_are_wide(m, c
         calls.append(x)
         return float(-np.exp(-abs((x - c1) / w) ** (1 + p)) + a2 * np.exp(-((x - c2) / w) ** 2) + 0.05 * x)
 
-    whole, coarse = [], []
+    whole, coarse, batches = [], [], []
+
+    def fmany(xs):
+        batches.append(list(xs))
+        return [f(x, coarse) for x in xs]
+
     x1, f1 = _grid_then_parabola(lambda x: f(x, whole), grid)
-    x2, f2 = _grid_coarse_first(lambda x: f(x, coarse), grid)
+    x2, f2 = _grid_then_parabola(lambda x: f(x, coarse), grid, fmany=fmany, coarse_first=True)
     scan = np.linspace(0.0, 1.0, 20001)
     vals = np.array([f(x, []) for x in scan])
     if np.sum((vals[1:-1] < vals[:-2]) & (vals[1:-1] < vals[2:])) <= 1:
         # One minimum: both land on it (within the grid's parabolic steps).
         assert abs(x2 - scan[int(np.argmin(vals))]) <= 1.0 / (m - 1)
     assert (x2, f2) == (x1, f1)
+    assert whole[:m] == list(grid) and len(whole) <= m + 3
+    idx = sorted(set(range(0, m, 2)) | {m - 1})
+    first = [float(grid[i]) for i in idx]
+    best = idx[int(np.argmin([f(x, []) for x in first]))]
+    near = [float(grid[i]) for i in (best - 1, best + 1) if 0 <= i < m and i not in idx]
+    assert batches[0] == first and (len(near) < 2 or batches[1] == near)
+    assert coarse[:len(first) + len(near)] == first + near and len(coarse) <= len(first) + len(near) + 3
     assert len(set(coarse)) < len(set(whole))
 
 

@@ -133,28 +133,24 @@ def _parabolic_search(f: Callable[[float], float], x0: list[float], lo: float, h
 
 
 def _grid_then_parabola(f: Callable[[float], float], grid: NDArray[np.float64], refine: int = 3,
-                        fmany: Optional[Callable[[list[float]], list[float]]] = None) -> tuple[float, float]:
+                        fmany: Optional[Callable[[list[float]], list[float]]] = None,
+                        coarse_first: bool = False) -> tuple[float, float]:
     """Coarse grid (robust to several minima), then successive parabolic steps around the
     best grid point (for smooth objectives: 2-3 evaluations instead of a golden search's 8).
-    ``fmany``: ``f`` on the whole grid at once (in parallel)."""
+    ``coarse_first``, for an error that varies slowly over two grid steps: every other
+    grid point first (both ends included), then the two beside the best of them; the same
+    choice as the whole grid unless a minimum is narrower than two grid steps, about a
+    third fewer evaluations. ``fmany``: ``f`` on several points at once (in parallel)."""
     xs = [float(x) for x in grid]
-    known = dict(zip(xs, fmany(xs) if fmany is not None else [f(x) for x in xs]))
-    return _parabolic_search(f, [], float(grid[0]), float(grid[-1]), refine=refine, expand=0, known=known)
+    known: dict[float, float] = {}
 
+    def evaluate(pts: list[float]) -> None:
+        known.update(zip(pts, fmany(pts) if fmany is not None and len(pts) > 1 else [f(x) for x in pts]))
 
-def _grid_coarse_first(f: Callable[[float], float], grid: NDArray[np.float64], refine: int = 3,
-                       fmany: Optional[Callable[[list[float]], list[float]]] = None) -> tuple[float, float]:
-    """``_grid_then_parabola`` for an error that varies slowly over two grid steps: every
-    other grid point first (both ends included), then the two points beside the best of
-    them, then the parabolic steps around the best. The same choice as the whole grid
-    unless a minimum is narrower than two grid steps; about a third fewer evaluations."""
-    xs = [float(x) for x in grid]
-    idx = sorted(set(range(0, len(xs), 2)) | {len(xs) - 1})
-    first = [xs[i] for i in idx]
-    known = dict(zip(first, fmany(first) if fmany is not None else [f(x) for x in first]))
-    b = xs.index(min(known, key=known.__getitem__))
-    near = [xs[i] for i in (b - 1, b + 1) if 0 <= i < len(xs) and xs[i] not in known]
-    known.update(zip(near, fmany(near) if fmany is not None and len(near) > 1 else [f(x) for x in near]))
+    evaluate([xs[i] for i in sorted(set(range(0, len(xs), 2)) | {len(xs) - 1})] if coarse_first else xs)
+    if coarse_first:
+        b = xs.index(min(known, key=known.__getitem__))
+        evaluate([xs[i] for i in (b - 1, b + 1) if 0 <= i < len(xs) and xs[i] not in known])
     return _parabolic_search(f, [], xs[0], xs[-1], refine=refine, expand=0, known=known)
 
 

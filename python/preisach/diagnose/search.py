@@ -32,7 +32,6 @@ from preisach.chain import Chain
 from preisach.diagnose.effects import (
     FitState,
     Record,
-    _grid_coarse_first,
     _grid_then_parabola,
     _mode_guess,
     _parabolic_search,
@@ -500,7 +499,7 @@ class Fitter:
                 f, fm = self.along(lp)
                 # (Every other cutoff first: the error changes slowly over two grid steps,
                 # a factor 2.5 of the cutoff.)
-                lf, fx = _grid_coarse_first(f, grid, fmany=fm)
+                lf, fx = _grid_then_parabola(f, grid, fmany=fm, coarse_first=True)
                 if best is None or fx < best[1]:
                     best = (lf, fx, order)
             assert best is not None
