@@ -288,14 +288,13 @@ impl SampleRows {
             mix.end_row();
         }
         self.mix.transpose(self.vab.len(), &mut self.mix_t);
-        self.build_direct();
+        self.build_direct((self.rows.nnz() + self.mix.nnz()) * 20 / 12);
     }
 
     /// Multiply the mixtures out into `B` when it is smaller than its factors (a value
     /// per entry against a pair, so 12 bytes against 20; the build stops once `B`
-    /// outgrows that).
-    fn build_direct(&mut self) {
-        let limit = (self.rows.nnz() + self.mix.nnz()) * 20 / 12;
+    /// outgrows that: `limit` entries).
+    fn build_direct(&mut self, limit: usize) {
         let d = &mut self.direct;
         d.clear();
         self.direct_t.clear();
@@ -963,4 +962,162 @@ pub fn fit_behind(
         projection,
     };
     Ok((model, report))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// xorshift64*, uniform in [0, 1).
+    struct Rng(u64);
+
+    impl Rng {
+        fn uniform(&mut self) -> f64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            (self.0.wrapping_mul(0x2545F4914F6CDD1D) >> 11) as f64 / (1u64 << 53) as f64
+        }
+        fn range(&mut self, a: f64, b: f64) -> f64 {
+            a + (b - a) * self.uniform()
+        }
+    }
+
+    /// A random walk with jumps and small wiggles, beyond the range (0, 1) on both sides.
+    fn input(rng: &mut Rng, n: usize) -> Vec<f64> {
+        let mut u = 0.5;
+        (0..n)
+            .map(|_| {
+                u += if rng.uniform() < 0.02 { rng.range(-0.8, 0.8) } else { rng.range(-0.03, 0.03) };
+                u = u.clamp(-0.2, 1.2);
+                u
+            })
+            .collect()
+    }
+
+    /// Signed masses (the difference of two models): their Everett values and offset,
+    /// and their output on `u` through the model's own staircase (the oracle).
+    fn signed(rng: &mut Rng, grid: &Grid, u: &[f64]) -> (Vec<f64>, Vec<f64>) {
+        let model = |rng: &mut Rng, offset: f64| {
+            let m: Vec<f64> = (0..grid.n_q()).map(|_| rng.uniform()).collect();
+            PreisachModel::new(grid.clone(), m, offset).unwrap()
+        };
+        let offset = rng.range(-1.0, 1.0);
+        let (pos, neg) = (model(rng, offset), model(rng, 0.0));
+        let mut x: Vec<f64> = pos.everett_values().iter().zip(neg.everett_values()).map(|(a, b)| a - b).collect();
+        x.push(pos.offset());
+        let (mut hp, mut hn) = (vec![0.0; u.len()], vec![0.0; u.len()]);
+        pos.run_interpolated(&mut pos.interp_memory(), u, &mut hp);
+        neg.run_interpolated(&mut neg.interp_memory(), u, &mut hn);
+        (x, hp.iter().zip(&hn).map(|(a, b)| a - b).collect())
+    }
+
+    /// `h` delayed by `delay` samples (linear between samples, `h[0]` before the start),
+    /// then averaged over windows of `stride` (the last partial one dropped).
+    fn windows(h: &[f64], stride: usize, delay: f64) -> Vec<f64> {
+        let at = |i: usize| {
+            let t = i as f64 - delay;
+            if t <= 0.0 {
+                return h[0];
+            }
+            let j = t.floor() as usize;
+            let f = t - j as f64;
+            if f == 0.0 {
+                h[j]
+            } else {
+                (1.0 - f) * h[j] + f * h[j + 1]
+            }
+        };
+        (0..h.len() / stride).map(|k| (k * stride..(k + 1) * stride).map(at).sum::<f64>() / stride as f64).collect()
+    }
+
+    fn dot(a: &[f64], b: &[f64]) -> f64 {
+        a.iter().zip(b).map(|(x, y)| x * y).sum()
+    }
+
+    fn max_diff(a: &[f64], b: &[f64]) -> f64 {
+        a.iter().zip(b).fold(0.0f64, |e, (x, y)| e.max((x - y).abs()))
+    }
+
+    #[test]
+    fn sample_rows_give_the_model_output_and_their_exact_adjoint() {
+        // Both ways of applying `B` (through the groups, and multiplied out), on random
+        // inputs, grids, windows and delays, against the model's own output; the adjoint
+        // by <B y, v> = <y, Bᵀ v> on random vectors.
+        let mut rng = Rng(0x9E3779B97F4A7C15);
+        for case in 0..12 {
+            let n_h = 3 + case % 7;
+            let stride = [1, 2, 3, 8][case % 4];
+            let delay = if case % 3 == 0 { 0.0 } else { rng.range(0.0, 20.0) };
+            let grid = Grid::new(0.0, 1.0, n_h).unwrap();
+            let u = input(&mut rng, 2000 + 37 * case);
+            let (x, h) = signed(&mut rng, &grid, &u);
+            let mut rows = SampleRows::new(&grid, &u, stride);
+            rows.set_delay(delay);
+            let want = windows(&h, stride, delay);
+            let scale = h.iter().fold(1.0f64, |a, v| a.max(v.abs()));
+            let m = rows.n_out();
+            let y: Vec<f64> = (0..x.len()).map(|_| rng.range(-1.0, 1.0)).collect();
+            let v: Vec<f64> = (0..m).map(|_| rng.range(-1.0, 1.0)).collect();
+            let mut outs = Vec::new();
+            for direct in [false, true] {
+                if direct {
+                    rows.build_direct(usize::MAX);
+                } else {
+                    rows.build_direct(0);
+                }
+                assert_eq!(rows.is_direct(), direct);
+                let mut got = vec![0.0; m];
+                rows.forward(&x, &mut got);
+                let d = max_diff(&got, &want);
+                assert!(d <= 1e-12 * scale, "case {case} direct {direct}: B x off the model by {d}");
+                let (mut by, mut btv) = (vec![0.0; m], vec![0.0; x.len()]);
+                rows.forward(&y, &mut by);
+                rows.adjoint(&v, &mut btv);
+                let (a, b) = (dot(&by, &v), dot(&y, &btv));
+                let size = by.iter().zip(&v).map(|(p, q)| (p * q).abs()).sum::<f64>();
+                assert!((a - b).abs() <= 1e-13 * size, "case {case} direct {direct}: <By, v> = {a}, <y, B'v> = {b}");
+                outs.push((by, btv));
+            }
+            assert!(max_diff(&outs[0].0, &outs[1].0) <= 1e-13 * m as f64);
+            assert!(max_diff(&outs[0].1, &outs[1].1) <= 1e-13 * m as f64);
+            let mut fine = vec![0.0; u.len()];
+            rows.forward_fine(&x, &mut fine);
+            assert!(max_diff(&fine, &h) <= 1e-12 * scale, "case {case}: the rows per sample are off the model");
+        }
+    }
+
+    #[test]
+    fn gram_is_the_normal_matrix_of_single_samples() {
+        // Windows of one sample, no delay: every output sample is one group's row, so the
+        // preconditioner's matrix is exactly Bᵀ B (built here from B's columns).
+        let mut rng = Rng(77);
+        for n_h in [4, 7] {
+            let grid = Grid::new(0.0, 1.0, n_h).unwrap();
+            let u = input(&mut rng, 1500);
+            let mut rows = SampleRows::new(&grid, &u, 1);
+            let (dim, m) = (grid.n_q() + 1, rows.n_out());
+            let cols: Vec<Vec<f64>> = (0..dim)
+                .map(|i| {
+                    let mut e = vec![0.0; dim];
+                    e[i] = 1.0;
+                    let mut c = vec![0.0; m];
+                    rows.forward(&e, &mut c);
+                    c
+                })
+                .collect();
+            let mut gram = vec![0.0; dim * dim];
+            for (k, w) in rows.gram() {
+                let (i, j) = ((k >> 32) as usize, (k & 0xffff_ffff) as usize);
+                gram[i * dim + j] += w;
+            }
+            for i in 0..dim {
+                for j in i..dim {
+                    let want = dot(&cols[i], &cols[j]);
+                    let got = gram[i * dim + j] + if i == j { 0.0 } else { gram[j * dim + i] };
+                    assert!((got - want).abs() <= 1e-9 * (1.0 + want.abs()), "({i}, {j}): {got} vs {want}");
+                }
+            }
+        }
+    }
 }
