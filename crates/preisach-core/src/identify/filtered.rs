@@ -20,7 +20,8 @@
 //!
 //! 1. the unconstrained optimum by conjugate gradients on the normal equations
 //!    `Bᵀ Lᵀ Ω L B x = Bᵀ Lᵀ Ω z` in Everett coordinates (`B`: per-sample rows, applied
-//!    through the groups of samples that share a staircase and a cell; `L`, `Lᵀ`: the
+//!    through the groups of samples that share a staircase and a cell, or multiplied out
+//!    on the averaged windows when that is smaller; `L`, `Lᵀ`: the
 //!    block recursions forwards and backwards), preconditioned by the unfiltered Gram
 //!    matrix `Bᵀ Ω B` (sparse, factored once): `L ≈ 1` where the hysteresis output lives,
 //!    so only the few directions that see the dynamics' resonance or roll-off cost
