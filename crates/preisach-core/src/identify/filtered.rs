@@ -61,10 +61,12 @@ impl<V: Copy + Default> Sparse<V> {
         Sparse { ptr: vec![0], col: Vec::new(), val: Vec::new() }
     }
 
+    #[inline]
     fn n_rows(&self) -> usize {
         self.ptr.len() - 1
     }
 
+    #[inline]
     fn nnz(&self) -> usize {
         self.col.len()
     }
@@ -80,6 +82,7 @@ impl<V: Copy + Default> Sparse<V> {
         self.ptr.push(self.col.len());
     }
 
+    #[inline]
     fn row(&self, r: usize) -> (&[u32], &[V]) {
         let (s, e) = (self.ptr[r], self.ptr[r + 1]);
         (&self.col[s..e], &self.val[s..e])
@@ -116,6 +119,7 @@ impl<V: Copy + Default> Sparse<V> {
 
 impl Sparse<f64> {
     /// `y = A x`.
+    #[inline]
     fn mul(&self, x: &[f64], y: &mut [f64]) {
         for (r, o) in y.iter_mut().enumerate() {
             let (cols, vals) = self.row(r);
