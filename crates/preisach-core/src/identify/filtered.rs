@@ -303,6 +303,13 @@ impl SampleRows {
         let d = &mut self.direct;
         d.clear();
         self.direct_t.clear();
+        // A window's row has at least the entries of its longest group's: give up early
+        // when that already exceeds the limit (windows of one group, a smooth input).
+        let rows = &self.rows;
+        let longest = |k: usize| self.mix.row(k).0.iter().map(|&g| rows.row(g as usize).0.len()).max();
+        if (0..self.mix.n_rows()).filter_map(longest).sum::<usize>() > limit {
+            return;
+        }
         let mut acc = vec![0.0; self.n_q];
         let mut seen = vec![false; self.n_q];
         let mut touched: Vec<u32> = Vec::new();
