@@ -297,6 +297,12 @@ impl Filter {
         if !self.settled {
             return self.settle(x);
         }
+        self.advance(x)
+    }
+
+    /// One sample of a settled filter.
+    #[inline(always)]
+    fn advance(&mut self, x: f64) -> f64 {
         let mut v = x;
         for (k, &(s, e, d)) in self.spans.iter().enumerate() {
             let vp = self.prev[k];
@@ -347,8 +353,13 @@ impl Filter {
     /// pass: the recursions are latency-bound, and independent ones in one loop overlap).
     pub fn apply(&mut self, x: &[f64], y: &mut [f64]) {
         self.reset();
-        for (o, &v) in y.iter_mut().zip(x) {
-            *o = self.step(v);
+        let n = x.len().min(y.len());
+        if n == 0 {
+            return;
+        }
+        y[0] = self.settle(x[0]);
+        for (o, &v) in y[1..n].iter_mut().zip(&x[1..n]) {
+            *o = self.advance(v);
         }
     }
 
@@ -361,24 +372,33 @@ impl Filter {
         }
         // G[m] = Σ_{k >= m} a^{k−m} g w[k]; x[m] gets b1 G[m] (m >= 1), b0 G[m+1]
         // (m <= n−2) and init G[0] (m = 0).
-        let (poles, g_next) = (&self.poles, &mut self.z);
-        g_next.iter_mut().for_each(|g| *g = C::new(0.0, 0.0));
-        for m in (0..w.len()).rev() {
-            let mut v = w[m];
-            for &(s, e, d) in self.spans.iter().rev() {
-                let mut out = d * v;
-                for (f, gn) in poles[s..e].iter().zip(&mut g_next[s..e]) {
-                    let gm = f.g * v + f.a * *gn;
-                    let mut t = f.b0 * *gn;
-                    t += if m == 0 { f.init * gm } else { f.b1 * gm };
-                    out += t.re;
-                    *gn = gm;
-                }
-                v = out;
-            }
-            x[m] = v;
+        self.z.iter_mut().for_each(|g| *g = C::new(0.0, 0.0));
+        for m in (1..w.len()).rev() {
+            x[m] = self.adjoint_step(w[m], false);
+        }
+        if let Some(&w0) = w.first() {
+            x[0] = self.adjoint_step(w0, true);
         }
         self.settled = false;
+    }
+
+    /// One sample of [`Filter::adjoint`], backwards (the poles' states hold G[m + 1]);
+    /// `first`: the record's first sample (its input is the state at rest).
+    #[inline(always)]
+    fn adjoint_step(&mut self, w: f64, first: bool) -> f64 {
+        let mut v = w;
+        for &(s, e, d) in self.spans.iter().rev() {
+            let mut out = d * v;
+            for (f, gn) in self.poles[s..e].iter().zip(&mut self.z[s..e]) {
+                let gm = f.g * v + f.a * *gn;
+                let mut t = f.b0 * *gn;
+                t += if first { f.init * gm } else { f.b1 * gm };
+                out += t.re;
+                *gn = gm;
+            }
+            v = out;
+        }
+        v
     }
 }
 

@@ -20,7 +20,8 @@
 //!
 //! 1. the unconstrained optimum by conjugate gradients on the normal equations
 //!    `Bᵀ Lᵀ Ω L B x = Bᵀ Lᵀ Ω z` in Everett coordinates (`B`: per-sample rows, applied
-//!    through the groups of samples that share a staircase and a cell; `L`, `Lᵀ`: the
+//!    through the groups of samples that share a staircase and a cell, or multiplied out
+//!    on the averaged windows when that is smaller; `L`, `Lᵀ`: the
 //!    block recursions forwards and backwards), preconditioned by the unfiltered Gram
 //!    matrix `Bᵀ Ω B` (sparse, factored once): `L ≈ 1` where the hysteresis output lives,
 //!    so only the few directions that see the dynamics' resonance or roll-off cost
@@ -40,6 +41,115 @@ use crate::grid::Grid;
 use crate::memory::Memory;
 use crate::model::PreisachModel;
 
+/// A sparse matrix compressed by rows: row r is entries `ptr[r]..ptr[r + 1]` of
+/// (column, value). The values are numbers, or pairs (two rows with one pattern). The
+/// kernels of the conjugate gradients read it row by row, summing in registers; a
+/// product with the transpose reads [`Sparse::transpose`], built once, so no kernel
+/// scatters.
+#[derive(Debug, Clone)]
+struct Sparse<V> {
+    ptr: Vec<usize>,
+    col: Vec<u32>,
+    val: Vec<V>,
+}
+
+/// Entries holding the values of two rows.
+type Pairs = Sparse<[f64; 2]>;
+
+impl<V: Copy + Default> Sparse<V> {
+    fn new() -> Self {
+        Sparse { ptr: vec![0], col: Vec::new(), val: Vec::new() }
+    }
+
+    #[inline]
+    fn n_rows(&self) -> usize {
+        self.ptr.len() - 1
+    }
+
+    #[inline]
+    fn nnz(&self) -> usize {
+        self.col.len()
+    }
+
+    fn clear(&mut self) {
+        self.ptr.truncate(1);
+        self.col.clear();
+        self.val.clear();
+    }
+
+    /// Close the current row (the entries pushed since the last call).
+    fn end_row(&mut self) {
+        self.ptr.push(self.col.len());
+    }
+
+    #[inline]
+    fn row(&self, r: usize) -> (&[u32], &[V]) {
+        let (s, e) = (self.ptr[r], self.ptr[r + 1]);
+        (&self.col[s..e], &self.val[s..e])
+    }
+
+    /// The same entries compressed by columns (`n_cols` of them; rows in increasing
+    /// order within each).
+    fn transpose(&self, n_cols: usize, out: &mut Sparse<V>) {
+        out.ptr.clear();
+        out.ptr.resize(n_cols + 1, 0);
+        for &c in &self.col {
+            out.ptr[c as usize + 1] += 1;
+        }
+        for c in 0..n_cols {
+            out.ptr[c + 1] += out.ptr[c];
+        }
+        let nnz = self.col.len();
+        out.col.clear();
+        out.col.resize(nnz, 0);
+        out.val.clear();
+        out.val.resize(nnz, V::default());
+        let mut next = out.ptr[..n_cols].to_vec();
+        for r in 0..self.n_rows() {
+            let (cols, vals) = self.row(r);
+            for (&c, &v) in cols.iter().zip(vals) {
+                let k = &mut next[c as usize];
+                out.col[*k] = r as u32;
+                out.val[*k] = v;
+                *k += 1;
+            }
+        }
+    }
+}
+
+impl Sparse<f64> {
+    /// `y = A x`.
+    #[inline]
+    fn mul(&self, x: &[f64], y: &mut [f64]) {
+        for (r, o) in y.iter_mut().enumerate() {
+            let (cols, vals) = self.row(r);
+            *o = cols.iter().zip(vals).map(|(&i, &v)| v * x[i as usize]).sum();
+        }
+    }
+}
+
+/// Append the union of two sorted sparse rows as pairs (a missing entry is 0).
+fn push_pair_row(a: &[(u32, f64)], b: &[(u32, f64)], out: &mut Pairs) {
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() || j < b.len() {
+        let ka = a.get(i).map_or(u32::MAX, |e| e.0);
+        let kb = b.get(j).map_or(u32::MAX, |e| e.0);
+        let k = ka.min(kb);
+        let mut v = [0.0; 2];
+        if ka == k {
+            v[0] = a[i].1;
+            i += 1;
+        }
+        if kb == k {
+            v[1] = b[j].1;
+            j += 1;
+        }
+        out.col.push(k);
+        out.val.push(v);
+    }
+    out.end_row();
+}
+
 /// The per-sample regression of the interpolated model in Everett coordinates: sample
 /// t's row is `(1 − λ_t) r_a + λ_t r_b` (plus 1 for the offset), with `r_a`, `r_b` the
 /// rows of its group (same stored extrema, current input in the same cell) at the cell's
@@ -54,20 +164,24 @@ struct SampleRows {
     n_q: usize,
     group: Vec<u32>,
     lam: Vec<f64>,
-    /// Group rows r_a (even entries) and r_b (odd entries), CSR.
-    ptr: Vec<usize>,
-    idx: Vec<u32>,
-    val: Vec<f64>,
-    /// Output samples (averaged windows) as mixtures of groups: entries
-    /// `optr[k]..optr[k+1]` of (group, weight of r_a, weight of r_b).
-    optr: Vec<usize>,
-    omix: Vec<(u32, f64, f64)>,
+    /// Group g's rows (r_a, r_b) on the union of their Everett variables (row g), and
+    /// the same by variable (row i: the groups that see variable i).
+    rows: Pairs,
+    rows_t: Pairs,
+    /// Output samples (averaged windows) as mixtures of groups: row k holds (group,
+    /// weights of r_a and r_b); and the same by group (row g: (output sample, weights)).
+    mix: Pairs,
+    mix_t: Pairs,
+    /// `B` itself on the output samples (without the offset) and its transpose, when
+    /// they take fewer bytes than the factors (windows of several samples: a window's
+    /// groups share most of their variables); empty otherwise.
+    direct: Sparse<f64>,
+    direct_t: Sparse<f64>,
     stride: usize,
     /// Delay (in input samples) the mixture holds.
     delay: f64,
-    // Scratch per group.
-    va: Vec<f64>,
-    vb: Vec<f64>,
+    /// Scratch per group: the values of r_a and r_b.
+    vab: Vec<[f64; 2]>,
 }
 
 impl SampleRows {
@@ -83,15 +197,15 @@ impl SampleRows {
             n_q: grid.n_q(),
             group: Vec::with_capacity(u.len()),
             lam: Vec::with_capacity(u.len()),
-            ptr: vec![0],
-            idx: Vec::new(),
-            val: Vec::new(),
-            optr: vec![0],
-            omix: Vec::new(),
+            rows: Pairs::new(),
+            rows_t: Pairs::new(),
+            mix: Pairs::new(),
+            mix_t: Pairs::new(),
+            direct: Sparse::new(),
+            direct_t: Sparse::new(),
             stride: stride.max(1),
             delay: f64::NAN,
-            va: Vec::new(),
-            vb: Vec::new(),
+            vab: Vec::new(),
         };
         let mut prev_p = f64::NAN;
         let (mut g, mut lam) = (0u32, 0.0);
@@ -108,20 +222,14 @@ impl SampleRows {
                 g = match seen.get(&key_buf) {
                     Some(&k) => k,
                     None => {
-                        let k = (sr.ptr.len() / 2) as u32;
+                        let k = sr.rows.n_rows() as u32;
                         seen.insert(key_buf.clone(), k);
                         // Affine in λ on the cell: evaluate inside and extrapolate.
                         emit_row(mem.turns(), cell as f64 + 1.0 / 3.0, n_h, &mut r1);
                         emit_row(mem.turns(), cell as f64 + 2.0 / 3.0, n_h, &mut r2);
                         combine(&r1, 2.0, &r2, -1.0, &mut ra);
                         combine(&r2, 2.0, &r1, -1.0, &mut rb);
-                        for row in [&ra, &rb] {
-                            for &(i, v) in row.iter() {
-                                sr.idx.push(i);
-                                sr.val.push(v);
-                            }
-                            sr.ptr.push(sr.idx.len());
-                        }
+                        push_pair_row(&ra, &rb, &mut sr.rows);
                         k
                     }
                 };
@@ -129,10 +237,10 @@ impl SampleRows {
             sr.group.push(g);
             sr.lam.push(lam);
         }
+        let n_g = sr.rows.n_rows();
+        sr.rows.transpose(sr.n_q, &mut sr.rows_t);
+        sr.vab = vec![[0.0; 2]; n_g];
         sr.set_delay(0.0);
-        let n_g = sr.ptr.len() / 2;
-        sr.va = vec![0.0; n_g];
-        sr.vb = vec![0.0; n_g];
         sr
     }
 
@@ -148,70 +256,135 @@ impl SampleRows {
         let s = self.stride;
         let n = self.group.len();
         let inv = 1.0 / s as f64;
-        self.optr.clear();
-        self.optr.push(0);
-        self.omix.clear();
-        let add = |mix: &mut Vec<(u32, f64, f64)>, start: usize, j: usize, w: f64| {
+        let mix = &mut self.mix;
+        mix.clear();
+        let add = |mix: &mut Pairs, start: usize, j: usize, w: f64| {
             if w == 0.0 {
                 return;
             }
             let (g, l) = (self.group[j], self.lam[j]);
-            match mix[start..].iter_mut().find(|e| e.0 == g) {
+            match mix.col[start..].iter().position(|&e| e == g) {
                 Some(e) => {
-                    e.1 += (1.0 - l) * w;
-                    e.2 += l * w;
+                    let v = &mut mix.val[start + e];
+                    v[0] += (1.0 - l) * w;
+                    v[1] += l * w;
                 }
-                None => mix.push((g, (1.0 - l) * w, l * w)),
+                None => {
+                    mix.col.push(g);
+                    mix.val.push([(1.0 - l) * w, l * w]);
+                }
             }
         };
         for k in 0..n / s {
-            let start = self.omix.len();
+            let start = mix.col.len();
             for i in k * s..(k + 1) * s {
                 let x = i as f64 - delay;
                 if x <= 0.0 {
-                    add(&mut self.omix, start, 0, inv);
+                    add(mix, start, 0, inv);
                     continue;
                 }
                 let j0 = x.floor() as usize;
                 let f = x - j0 as f64;
-                add(&mut self.omix, start, j0.min(n - 1), (1.0 - f) * inv);
+                add(mix, start, j0.min(n - 1), (1.0 - f) * inv);
                 if f > 0.0 {
-                    add(&mut self.omix, start, (j0 + 1).min(n - 1), f * inv);
+                    add(mix, start, (j0 + 1).min(n - 1), f * inv);
                 }
             }
-            self.optr.push(self.omix.len());
+            mix.end_row();
         }
+        self.mix.transpose(self.vab.len(), &mut self.mix_t);
+        self.build_direct((self.rows.nnz() + self.mix.nnz()) * 20 / 12);
+    }
+
+    /// Multiply the mixtures out into `B` when it is smaller than its factors (a value
+    /// per entry against a pair, so 12 bytes against 20; the build stops once `B`
+    /// outgrows that: `limit` entries).
+    fn build_direct(&mut self, limit: usize) {
+        let d = &mut self.direct;
+        d.clear();
+        self.direct_t.clear();
+        // A window's row has at least the entries of its longest group's: give up early
+        // when that already exceeds the limit (windows of one group, a smooth input).
+        let rows = &self.rows;
+        let longest = |k: usize| self.mix.row(k).0.iter().map(|&g| rows.row(g as usize).0.len()).max();
+        if (0..self.mix.n_rows()).filter_map(longest).sum::<usize>() > limit {
+            return;
+        }
+        let mut acc = vec![0.0; self.n_q];
+        let mut seen = vec![false; self.n_q];
+        let mut touched: Vec<u32> = Vec::new();
+        for k in 0..self.mix.n_rows() {
+            let (gs, ws) = self.mix.row(k);
+            for (&g, w) in gs.iter().zip(ws) {
+                let (cols, vals) = self.rows.row(g as usize);
+                for (&i, v) in cols.iter().zip(vals) {
+                    if !seen[i as usize] {
+                        seen[i as usize] = true;
+                        touched.push(i);
+                    }
+                    acc[i as usize] += w[0] * v[0] + w[1] * v[1];
+                }
+            }
+            touched.sort_unstable();
+            for &i in &touched {
+                d.col.push(i);
+                d.val.push(acc[i as usize]);
+                acc[i as usize] = 0.0;
+                seen[i as usize] = false;
+            }
+            touched.clear();
+            d.end_row();
+            if d.nnz() > limit {
+                d.clear();
+                return;
+            }
+        }
+        d.transpose(self.n_q, &mut self.direct_t);
+    }
+
+    /// Whether the products go through `B` itself (see [`SampleRows::build_direct`]).
+    fn is_direct(&self) -> bool {
+        self.direct.n_rows() > 0
     }
 
     fn n_groups(&self) -> usize {
-        self.va.len()
+        self.vab.len()
     }
 
     fn n_out(&self) -> usize {
-        self.optr.len() - 1
+        self.mix.n_rows()
     }
 
-    fn row(&self, g: usize, b: usize) -> (&[u32], &[f64]) {
-        let (s, e) = (self.ptr[2 * g + b], self.ptr[2 * g + b + 1]);
-        (&self.idx[s..e], &self.val[s..e])
-    }
-
+    /// The values of every group's rows r_a and r_b at `x`.
     fn group_values(&mut self, x: &[f64]) {
-        for g in 0..self.n_groups() {
-            let dot = |(idx, val): (&[u32], &[f64])| idx.iter().zip(val).map(|(&i, &v)| v * x[i as usize]).sum::<f64>();
-            self.va[g] = dot(self.row(g, 0));
-            self.vb[g] = dot(self.row(g, 1));
+        let rows = &self.rows;
+        for (g, o) in self.vab.iter_mut().enumerate() {
+            let (cols, vals) = rows.row(g);
+            let mut s = [0.0; 2];
+            for (&i, v) in cols.iter().zip(vals) {
+                let xi = x[i as usize];
+                s[0] += v[0] * xi;
+                s[1] += v[1] * xi;
+            }
+            *o = s;
         }
     }
 
     /// `h = B x` on the output samples (x: Everett values, then the offset).
     fn forward(&mut self, x: &[f64], h: &mut [f64]) {
-        self.group_values(x);
         let c = x[self.n_q];
+        if self.is_direct() {
+            self.direct.mul(x, h);
+            h.iter_mut().for_each(|o| *o += c);
+            return;
+        }
+        self.group_values(x);
         for (k, o) in h.iter_mut().enumerate() {
+            let (gs, ws) = self.mix.row(k);
             let mut v = c;
-            for &(g, wa, wb) in &self.omix[self.optr[k]..self.optr[k + 1]] {
-                v += wa * self.va[g as usize] + wb * self.vb[g as usize];
+            for (&g, w) in gs.iter().zip(ws) {
+                let a = self.vab[g as usize];
+                v += w[0] * a[0] + w[1] * a[1];
             }
             *o = v;
         }
@@ -222,33 +395,38 @@ impl SampleRows {
         self.group_values(x);
         let c = x[self.n_q];
         for ((o, &g), &l) in h.iter_mut().zip(&self.group).zip(&self.lam) {
-            let g = g as usize;
-            *o = (1.0 - l) * self.va[g] + l * self.vb[g] + c;
+            let [a, b] = self.vab[g as usize];
+            *o = (1.0 - l) * a + l * b + c;
         }
     }
 
     /// `x = Bᵀ v` (v on the output samples).
     fn adjoint(&mut self, v: &[f64], x: &mut [f64]) {
-        self.va.iter_mut().for_each(|a| *a = 0.0);
-        self.vb.iter_mut().for_each(|b| *b = 0.0);
-        let mut total = 0.0;
-        for (k, &w) in v.iter().enumerate() {
-            for &(g, wa, wb) in &self.omix[self.optr[k]..self.optr[k + 1]] {
-                self.va[g as usize] += wa * w;
-                self.vb[g as usize] += wb * w;
-            }
-            total += w;
+        x[self.n_q] = v.iter().sum();
+        if self.is_direct() {
+            self.direct_t.mul(v, &mut x[..self.n_q]);
+            return;
         }
-        x.iter_mut().for_each(|o| *o = 0.0);
-        for g in 0..self.n_groups() {
-            for (b, s) in [(0, self.va[g]), (1, self.vb[g])] {
-                let (idx, val) = self.row(g, b);
-                for (&i, &c) in idx.iter().zip(val) {
-                    x[i as usize] += s * c;
-                }
+        let mix_t = &self.mix_t;
+        for (g, o) in self.vab.iter_mut().enumerate() {
+            let (ks, ws) = mix_t.row(g);
+            let mut s = [0.0; 2];
+            for (&k, w) in ks.iter().zip(ws) {
+                let vk = v[k as usize];
+                s[0] += w[0] * vk;
+                s[1] += w[1] * vk;
             }
+            *o = s;
         }
-        x[self.n_q] = total;
+        for (i, o) in x[..self.n_q].iter_mut().enumerate() {
+            let (gs, vals) = self.rows_t.row(i);
+            let mut s = 0.0;
+            for (&g, c) in gs.iter().zip(vals) {
+                let a = self.vab[g as usize];
+                s += c[0] * a[0] + c[1] * a[1];
+            }
+            *o = s;
+        }
     }
 
     /// Upper-triangular triplets of (nearly) `Bᵀ B` on the output samples (the offset is
@@ -258,23 +436,22 @@ impl SampleRows {
     fn gram(&self) -> Vec<(u64, f64)> {
         let n_g = self.n_groups();
         let mut mom = vec![[0.0f64; 3]; n_g];
-        for &(g, wa, wb) in &self.omix {
+        for (&g, w) in self.mix.col.iter().zip(&self.mix.val) {
             let m = &mut mom[g as usize];
-            m[0] += wa * wa;
-            m[1] += wa * wb;
-            m[2] += wb * wb;
+            m[0] += w[0] * w[0];
+            m[1] += w[0] * w[1];
+            m[2] += w[1] * w[1];
         }
         let off = self.n_q as u32;
         let mut trip = Vec::new();
         let (mut a, mut b, mut p) = (Vec::new(), Vec::new(), Vec::new());
         for (g, m) in mom.iter().enumerate() {
-            let (ia, vaa) = self.row(g, 0);
-            let (ib, vbb) = self.row(g, 1);
+            let (cols, vals) = self.rows.row(g);
             a.clear();
-            a.extend(ia.iter().copied().zip(vaa.iter().copied()));
+            a.extend(cols.iter().zip(vals).map(|(&i, v)| (i, v[0])));
             a.push((off, 1.0));
             b.clear();
-            b.extend(ib.iter().copied().zip(vbb.iter().copied()));
+            b.extend(cols.iter().zip(vals).map(|(&i, v)| (i, v[1])));
             b.push((off, 1.0));
             let scale = (m[0] + m[2]).max(1e-300);
             let l11 = m[0].sqrt();
@@ -797,4 +974,162 @@ pub fn fit_behind(
         projection,
     };
     Ok((model, report))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// xorshift64*, uniform in [0, 1).
+    struct Rng(u64);
+
+    impl Rng {
+        fn uniform(&mut self) -> f64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            (self.0.wrapping_mul(0x2545F4914F6CDD1D) >> 11) as f64 / (1u64 << 53) as f64
+        }
+        fn range(&mut self, a: f64, b: f64) -> f64 {
+            a + (b - a) * self.uniform()
+        }
+    }
+
+    /// A random walk with jumps and small wiggles, beyond the range (0, 1) on both sides.
+    fn input(rng: &mut Rng, n: usize) -> Vec<f64> {
+        let mut u = 0.5;
+        (0..n)
+            .map(|_| {
+                u += if rng.uniform() < 0.02 { rng.range(-0.8, 0.8) } else { rng.range(-0.03, 0.03) };
+                u = u.clamp(-0.2, 1.2);
+                u
+            })
+            .collect()
+    }
+
+    /// Signed masses (the difference of two models): their Everett values and offset,
+    /// and their output on `u` through the model's own staircase (the oracle).
+    fn signed(rng: &mut Rng, grid: &Grid, u: &[f64]) -> (Vec<f64>, Vec<f64>) {
+        let model = |rng: &mut Rng, offset: f64| {
+            let m: Vec<f64> = (0..grid.n_q()).map(|_| rng.uniform()).collect();
+            PreisachModel::new(grid.clone(), m, offset).unwrap()
+        };
+        let offset = rng.range(-1.0, 1.0);
+        let (pos, neg) = (model(rng, offset), model(rng, 0.0));
+        let mut x: Vec<f64> = pos.everett_values().iter().zip(neg.everett_values()).map(|(a, b)| a - b).collect();
+        x.push(pos.offset());
+        let (mut hp, mut hn) = (vec![0.0; u.len()], vec![0.0; u.len()]);
+        pos.run_interpolated(&mut pos.interp_memory(), u, &mut hp);
+        neg.run_interpolated(&mut neg.interp_memory(), u, &mut hn);
+        (x, hp.iter().zip(&hn).map(|(a, b)| a - b).collect())
+    }
+
+    /// `h` delayed by `delay` samples (linear between samples, `h[0]` before the start),
+    /// then averaged over windows of `stride` (the last partial one dropped).
+    fn windows(h: &[f64], stride: usize, delay: f64) -> Vec<f64> {
+        let at = |i: usize| {
+            let t = i as f64 - delay;
+            if t <= 0.0 {
+                return h[0];
+            }
+            let j = t.floor() as usize;
+            let f = t - j as f64;
+            if f == 0.0 {
+                h[j]
+            } else {
+                (1.0 - f) * h[j] + f * h[j + 1]
+            }
+        };
+        (0..h.len() / stride).map(|k| (k * stride..(k + 1) * stride).map(at).sum::<f64>() / stride as f64).collect()
+    }
+
+    fn dot(a: &[f64], b: &[f64]) -> f64 {
+        a.iter().zip(b).map(|(x, y)| x * y).sum()
+    }
+
+    fn max_diff(a: &[f64], b: &[f64]) -> f64 {
+        a.iter().zip(b).fold(0.0f64, |e, (x, y)| e.max((x - y).abs()))
+    }
+
+    #[test]
+    fn sample_rows_give_the_model_output_and_their_exact_adjoint() {
+        // Both ways of applying `B` (through the groups, and multiplied out), on random
+        // inputs, grids, windows and delays, against the model's own output; the adjoint
+        // by <B y, v> = <y, Bᵀ v> on random vectors.
+        let mut rng = Rng(0x9E3779B97F4A7C15);
+        for case in 0..12 {
+            let n_h = 3 + case % 7;
+            let stride = [1, 2, 3, 8][case % 4];
+            let delay = if case % 3 == 0 { 0.0 } else { rng.range(0.0, 20.0) };
+            let grid = Grid::new(0.0, 1.0, n_h).unwrap();
+            let u = input(&mut rng, 2000 + 37 * case);
+            let (x, h) = signed(&mut rng, &grid, &u);
+            let mut rows = SampleRows::new(&grid, &u, stride);
+            rows.set_delay(delay);
+            let want = windows(&h, stride, delay);
+            let scale = h.iter().fold(1.0f64, |a, v| a.max(v.abs()));
+            let m = rows.n_out();
+            let y: Vec<f64> = (0..x.len()).map(|_| rng.range(-1.0, 1.0)).collect();
+            let v: Vec<f64> = (0..m).map(|_| rng.range(-1.0, 1.0)).collect();
+            let mut outs = Vec::new();
+            for direct in [false, true] {
+                if direct {
+                    rows.build_direct(usize::MAX);
+                } else {
+                    rows.build_direct(0);
+                }
+                assert_eq!(rows.is_direct(), direct);
+                let mut got = vec![0.0; m];
+                rows.forward(&x, &mut got);
+                let d = max_diff(&got, &want);
+                assert!(d <= 1e-12 * scale, "case {case} direct {direct}: B x off the model by {d}");
+                let (mut by, mut btv) = (vec![0.0; m], vec![0.0; x.len()]);
+                rows.forward(&y, &mut by);
+                rows.adjoint(&v, &mut btv);
+                let (a, b) = (dot(&by, &v), dot(&y, &btv));
+                let size = by.iter().zip(&v).map(|(p, q)| (p * q).abs()).sum::<f64>();
+                assert!((a - b).abs() <= 1e-13 * size, "case {case} direct {direct}: <By, v> = {a}, <y, B'v> = {b}");
+                outs.push((by, btv));
+            }
+            assert!(max_diff(&outs[0].0, &outs[1].0) <= 1e-13 * m as f64);
+            assert!(max_diff(&outs[0].1, &outs[1].1) <= 1e-13 * m as f64);
+            let mut fine = vec![0.0; u.len()];
+            rows.forward_fine(&x, &mut fine);
+            assert!(max_diff(&fine, &h) <= 1e-12 * scale, "case {case}: the rows per sample are off the model");
+        }
+    }
+
+    #[test]
+    fn gram_is_the_normal_matrix_of_single_samples() {
+        // Windows of one sample, no delay: every output sample is one group's row, so the
+        // preconditioner's matrix is exactly Bᵀ B (built here from B's columns).
+        let mut rng = Rng(77);
+        for n_h in [4, 7] {
+            let grid = Grid::new(0.0, 1.0, n_h).unwrap();
+            let u = input(&mut rng, 1500);
+            let mut rows = SampleRows::new(&grid, &u, 1);
+            let (dim, m) = (grid.n_q() + 1, rows.n_out());
+            let cols: Vec<Vec<f64>> = (0..dim)
+                .map(|i| {
+                    let mut e = vec![0.0; dim];
+                    e[i] = 1.0;
+                    let mut c = vec![0.0; m];
+                    rows.forward(&e, &mut c);
+                    c
+                })
+                .collect();
+            let mut gram = vec![0.0; dim * dim];
+            for (k, w) in rows.gram() {
+                let (i, j) = ((k >> 32) as usize, (k & 0xffff_ffff) as usize);
+                gram[i * dim + j] += w;
+            }
+            for i in 0..dim {
+                for j in i..dim {
+                    let want = dot(&cols[i], &cols[j]);
+                    let got = gram[i * dim + j] + if i == j { 0.0 } else { gram[j * dim + i] };
+                    assert!((got - want).abs() <= 1e-9 * (1.0 + want.abs()), "({i}, {j}): {got} vs {want}");
+                }
+            }
+        }
+    }
 }
