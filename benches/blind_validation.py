@@ -21,7 +21,8 @@ Usage: python benches/blind_validation.py [--stages N] [--seed S] [--fs HZ]
        python benches/blind_validation.py --rig N [--seed S]  (N stages per rig class;
        prints the per-class table)
        python benches/blind_validation.py --timing EFFECT[+EFFECT]  (6 s of 100 kHz data:
-       2 s train + two 2 s holdouts; prints the per-candidate times and the total)
+       2 s train + two 2 s holdouts; prints the per-candidate times and the total;
+       --input-noise F adds white noise of F times the input's range to every input)
 """
 from __future__ import annotations
 
@@ -260,6 +261,9 @@ def main() -> int:
     ap.add_argument("--rig", type=int, default=None, help="stages per class of the rig (tests/rig.py) instead")
     ap.add_argument("--classes", default=None, help="with --rig: only these classes (comma-separated)")
     ap.add_argument("--timing", default=None, help="time one 100 kHz stage with these effects ('none' or e.g. delay+creep)")
+    ap.add_argument("--input-noise", type=float, default=0.0,
+                    help="with --timing: white noise on every record's input, as a fraction of its range "
+                         "(a measured drive voltage rather than the command)")
     a = ap.parse_args()
     if a.timing is not None:
         from preisach.diagnose import diagnose
@@ -268,9 +272,17 @@ def main() -> int:
         unknown = [x for x in names if x not in EFFECTS]
         if unknown:
             ap.error(f"--timing: unknown effect {', '.join(unknown)} (one of none, {', '.join(EFFECTS)})")
+        if not (np.isfinite(a.input_noise) and a.input_noise >= 0):
+            ap.error(f"--input-noise: expected a fraction >= 0, got {a.input_noise}")
         st = make_stage(7, names, fs=100e3, dur=2.0)
+        noise = np.random.default_rng(5)
+
+        def measured(r: dict[str, Any]) -> dict[str, Any]:
+            u = np.asarray(r["u"], dtype=np.float64)
+            return {"t": r["t"], "u": u + a.input_noise * np.ptp(u) * noise.standard_normal(u.size), "y": r["y"]}
+
         t0 = time.perf_counter()
-        rep = diagnose(st["train"], [{k: h[k] for k in "tuy"} for h in st["holdouts"]], progress=True)
+        rep = diagnose(measured(st["train"]), [measured(h) for h in st["holdouts"]], progress=True)
         el = time.perf_counter() - t0
         found = [e["name"] for e in rep.effects if e["detected"]]
         print(f"truth {names or ('none',)}: found {found or ['none']} in {el:.1f} s "

@@ -128,6 +128,23 @@ impl Sparse<f64> {
     }
 }
 
+impl Pairs {
+    /// `y = A x`, both rows of each pair.
+    #[inline]
+    fn mul(&self, x: &[f64], y: &mut [[f64; 2]]) {
+        for (r, o) in y.iter_mut().enumerate() {
+            let (cols, vals) = self.row(r);
+            let mut s = [0.0; 2];
+            for (&i, v) in cols.iter().zip(vals) {
+                let xi = x[i as usize];
+                s[0] += v[0] * xi;
+                s[1] += v[1] * xi;
+            }
+            *o = s;
+        }
+    }
+}
+
 /// Append the union of two sorted sparse rows as pairs (a missing entry is 0).
 fn push_pair_row(a: &[(u32, f64)], b: &[(u32, f64)], out: &mut Pairs) {
     let (mut i, mut j) = (0, 0);
@@ -357,17 +374,7 @@ impl SampleRows {
 
     /// The values of every group's rows r_a and r_b at `x`.
     fn group_values(&mut self, x: &[f64]) {
-        let rows = &self.rows;
-        for (g, o) in self.vab.iter_mut().enumerate() {
-            let (cols, vals) = rows.row(g);
-            let mut s = [0.0; 2];
-            for (&i, v) in cols.iter().zip(vals) {
-                let xi = x[i as usize];
-                s[0] += v[0] * xi;
-                s[1] += v[1] * xi;
-            }
-            *o = s;
-        }
+        self.rows.mul(x, &mut self.vab);
     }
 
     /// `h = B x` on the output samples (x: Everett values, then the offset).
@@ -407,17 +414,7 @@ impl SampleRows {
             self.direct_t.mul(v, &mut x[..self.n_q]);
             return;
         }
-        let mix_t = &self.mix_t;
-        for (g, o) in self.vab.iter_mut().enumerate() {
-            let (ks, ws) = mix_t.row(g);
-            let mut s = [0.0; 2];
-            for (&k, w) in ks.iter().zip(ws) {
-                let vk = v[k as usize];
-                s[0] += w[0] * vk;
-                s[1] += w[1] * vk;
-            }
-            *o = s;
-        }
+        self.mix_t.mul(v, &mut self.vab);
         for (i, o) in x[..self.n_q].iter_mut().enumerate() {
             let (gs, vals) = self.rows_t.row(i);
             let mut s = 0.0;
