@@ -231,3 +231,26 @@ def test_slow_calibration_recovers_drift_and_creep_across_records(cal_rate, monk
     err = max(np.sqrt(np.mean((cal.predict(r) - r.y) ** 2)) for r in recs)
     before = max(np.sqrt(np.mean((st.predict(r) - r.y) ** 2)) for r in recs)
     assert err < 0.05 * before
+
+
+
+def test_a_projected_chain_is_kept_and_handed_out_as_a_copy(drift_record):
+    """``Fitter.state`` keeps each projected chain: the same chain after other solves (the
+    sessions' warm starts moved) gives the same masses, a caller changing its copy does not
+    change the next one, and another n_h gives what a fitter of that n_h gives."""
+    rec, _ = drift_record
+    f = Fitter(rec, N_H, RANGE, stride=2)
+    eff = {"drift": {"gain_per_s": 0.02, "offset": 0.0, "offset_per_s": 0.0}}
+    a = f.state(eff)
+    gain = a.effects["drift"]["offset_per_s"]
+    f.J({"creep": {"taus_s": [0.2], "amplitudes": [0.02], "normalized": True}})
+    f.state({})
+    a.effects["drift"]["offset_per_s"] = 1e3
+    b = f.state(dict(eff, drift=dict(eff["drift"], offset_per_s=-5.0)))  # linear terms are refitted
+    assert b.effects["drift"]["offset_per_s"] == gain
+    assert np.array_equal(a.model.weights, b.model.weights)
+    fine = f.state(eff, n_h=N_H + 4)
+    alone = Fitter(rec, N_H + 4, RANGE, stride=2).state(eff)
+    assert fine.model.n_h == N_H + 4
+    assert fine.train_rmse == pytest.approx(alone.train_rmse, rel=1e-6)
+    assert f.state(eff, n_h=N_H + 4).model is fine.model

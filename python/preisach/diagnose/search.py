@@ -19,6 +19,7 @@ reported as a detected delay only when it is longer than the sampling can explai
 """
 from __future__ import annotations
 
+import copy
 import math
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -231,6 +232,8 @@ class Fitter:
         self._lock = threading.Lock()
         self._memo: dict[tuple[Any, ...], tuple[float, list[float]]] = {}
         self._columns: dict[tuple[Any, ...], Optional[NDArray[np.float64]]] = {}
+        self._states: dict[tuple[Any, ...], FitState] = {}
+        self._others: dict[int, Fitter] = {}
         self.evaluations = 0
         self._u = np.ascontiguousarray(rec.u, dtype=np.float64)
         # The averaged record the chains are fitted to.
@@ -379,11 +382,31 @@ class Fitter:
     def state(self, eff: Effects, n_h: Optional[int] = None) -> FitState:
         """The chain with masses >= 0 (exact NNLS projection; the masses the record does
         not identify zero, ``preisach.diagnose.identified``) and its linear coefficients
-        refitted with them."""
+        refitted with them; memoized like ``J`` (the searches come back to a chain: the
+        candidate accepted, a held-out choice's winner), a copy returned."""
         if n_h is not None and n_h != self.n_h:
-            other = Fitter(self.rec, n_h, self.u_range, self.stride, self.tol, self.trials, self.ranges)
-            other.rest = self.rest
-            return other.state(eff)
+            return self._other(n_h).state(eff)
+        k = (self.rest, _key(eff))
+        with self._lock:
+            st = self._states.get(k)
+        if st is None:
+            st = self._project(eff)
+            with self._lock:
+                self._states[k] = st
+        return FitState(st.model, copy.deepcopy(st.effects), st.train_rmse)
+
+    def _other(self, n_h: int) -> Fitter:
+        """The fitter of the same record with ``n_h`` levels (kept: its sessions are the
+        costly part)."""
+        with self._lock:
+            f = self._others.get(n_h)
+            if f is None:
+                f = self._others[n_h] = Fitter(self.rec, n_h, self.u_range, self.stride, self.tol, self.trials,
+                                               self.ranges)
+        f.rest = self.rest
+        return f
+
+    def _project(self, eff: Effects) -> FitState:
         pb = self._problem(eff)
         res = self._solve(pb, nnls=True)
         model = identified(PreisachModel._wrap(res["model"], "interpolated"), self._u)
