@@ -712,3 +712,17 @@ def test_the_mode_guess_on_a_record_with_fewer_bins_than_its_trend_window():
     found = _mode_guess(np.sin(np.arange(24) * 2.2), 1e-3, 16)
     # One peak of the two bins in (300 Hz, 0.4 / dt): peaks closer than 5 bins are one.
     assert len(found) == 1 and found[0] in (1000 / 3, 375.0)
+
+
+@given(hs.floats(10.0, 2e4), hs.floats(1e-3, 2.0), hs.floats(0.05, 3.0))
+def test_a_modes_band_response_is_the_vibration_blocks(f0, zeta, span):
+    """The band fit's mode response (no chain built) against scipy's transfer function and
+    the chain's own vibration block, across its peak."""
+    from preisach.diagnose.search import mode_response
+
+    f = np.linspace(f0 * (1 - min(span, 0.99)), f0 * (1 + span), 257)
+    got = mode_response({"frequency_hz": f0, "damping": zeta}, f)
+    _, want = signal.freqs(*tf_mode(f0, zeta), worN=2 * np.pi * f)
+    chain = Chain(None, {"vibration": {"frequency_hz": f0, "damping": zeta}}).response(f)
+    assert np.allclose(got, want, rtol=1e-9, atol=0)
+    assert np.allclose(got, chain, rtol=1e-9, atol=0)

@@ -725,7 +725,8 @@ class Fitter:
             found: list[tuple[str, float, int]] = [("delay", 0.0, 0)]
             masks: dict[tuple[float, float], NDArray[np.intp]] = {}
             phc: dict[tuple[float, float], NDArray[np.complex128]] = {}
-            power: dict[tuple[float, float], tuple[NDArray[np.float64], float]] = {}
+            power: dict[tuple[float, float], tuple[NDArray[np.float64], float, NDArray[np.float64],
+                                                   NDArray[np.float64]]] = {}
 
             def band_err(p: Optional[dict[str, Any]], m: tuple[float, float]) -> float:
                 # The mode's analog response times the rest of the chain's spectrum (the
@@ -745,15 +746,16 @@ class Fitter:
                 if p is None:
                     P = B[mk]  # no mode: the band error to compare with
                 else:
-                    P = _response({"vibration": p}, f[mk]) * B[mk]
+                    P = mode_response(p, f[mk]) * B[mk]
                 if nuisance:
                     # sum |P h - Y|^2 for every nuisance's response h, as matrix products:
                     # |h|^2 |P|^2 - 2 Re(h P conj(Y)) + |Y|^2, summed over the band.
-                    if m not in power:
-                        power[m] = (np.abs(phc[m]) ** 2, float(np.sum(np.abs(Y[mk]) ** 2)))
-                    h2, y2 = power[m]
+                    if m not in power:  # (the parts contiguous: a product with a strided view copies)
+                        power[m] = (np.abs(phc[m]) ** 2, float(np.sum(np.abs(Y[mk]) ** 2)),
+                                    np.ascontiguousarray(phc[m].real), np.ascontiguousarray(phc[m].imag))
+                    h2, y2, hr, hi = power[m]
                     q = P * np.conj(Y[mk])
-                    errs = h2 @ (P.real ** 2 + P.imag ** 2) - 2.0 * (phc[m].real @ q.real - phc[m].imag @ q.imag) + y2
+                    errs = h2 @ (P.real ** 2 + P.imag ** 2) - 2.0 * (hr @ q.real - hi @ q.imag) + y2
                 else:
                     errs = np.array([np.sum(np.abs(P - Y[mk]) ** 2)])
                 k = int(np.argmin(errs))
@@ -1053,3 +1055,13 @@ def _run(effects: Effects, t: NDArray[np.float64], x: NDArray[np.float64]) -> ND
 def _response(effects: Effects, f_hz: Any) -> NDArray[np.complex128]:
     """The analog frequency response of linear effects at ``f_hz``."""
     return Chain(None, effects).response(f_hz)
+
+
+def mode_response(p: dict[str, Any], f_hz: NDArray[np.float64]) -> NDArray[np.complex128]:
+    """The vibration block's response ``w^2 / (s^2 + 2 zeta w s + w^2)`` of one mode at
+    ``f_hz`` (what ``_response`` gives, without building a chain: a mode's band fit asks
+    for thousands)."""
+    w = 2 * math.pi * float(p["frequency_hz"])
+    s = 2j * math.pi * np.asarray(f_hz, dtype=np.float64)
+    out: NDArray[np.complex128] = w * w / (s * s + 2.0 * float(p["damping"]) * w * s + w * w)
+    return out
