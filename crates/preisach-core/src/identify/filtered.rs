@@ -430,7 +430,38 @@ impl SampleRows {
     /// variable n_q): per group the entries are `wa ã + wb b̃` with ã = r_a + e_offset,
     /// and the 2×2 moment matrix of (wa, wb) gives the group's contribution. (Cross terms
     /// between groups sharing an averaged window are left out: a preconditioner only.)
+    /// Summed in a packed triangle when it holds at most [`DENSE_GRAM_MAX`] entries:
+    /// a noisy input makes a group per sample, whose products (millions) would
+    /// otherwise be sorted to be summed.
     fn gram(&self) -> Vec<(u64, f64)> {
+        self.gram_with(DENSE_GRAM_MAX)
+    }
+
+    fn gram_with(&self, dense_max: usize) -> Vec<(u64, f64)> {
+        let dim = self.n_q + 1;
+        let packed = dim * (dim + 1) / 2;
+        if packed > dense_max {
+            let mut trip = Vec::new();
+            self.gram_products(|i, j, v| trip.push((key(i, j), v)));
+            return trip;
+        }
+        // Entry (row i, column j), i <= j, at j (j + 1) / 2 + i: column by column, the
+        // triplets come out in key order.
+        let mut acc = vec![0.0; packed];
+        self.gram_products(|i, j, v| {
+            let (r, c) = if i <= j { (i, j) } else { (j, i) };
+            acc[c * (c + 1) / 2 + r] += v;
+        });
+        let mut trip = Vec::new();
+        for c in 0..dim {
+            let col = &acc[c * (c + 1) / 2..(c + 1) * (c + 2) / 2];
+            trip.extend(col.iter().enumerate().filter(|(_, &v)| v != 0.0).map(|(r, &v)| (key(r, c), v)));
+        }
+        trip
+    }
+
+    /// Every product of the Gram matrix's upper triangle, as (variable, variable, value).
+    fn gram_products(&self, mut emit: impl FnMut(usize, usize, f64)) {
         let n_g = self.n_groups();
         let mut mom = vec![[0.0f64; 3]; n_g];
         for (&g, w) in self.mix.col.iter().zip(&self.mix.val) {
@@ -440,7 +471,6 @@ impl SampleRows {
             m[2] += w[1] * w[1];
         }
         let off = self.n_q as u32;
-        let mut trip = Vec::new();
         let (mut a, mut b, mut p) = (Vec::new(), Vec::new(), Vec::new());
         for (g, m) in mom.iter().enumerate() {
             let (cols, vals) = self.rows.row(g);
@@ -470,14 +500,17 @@ impl SampleRows {
                 combine(&a, ca, &b, cb, &mut p);
                 for (k, &(i, vi)) in p.iter().enumerate() {
                     for &(j, vj) in &p[k..] {
-                        trip.push((key(i as usize, j as usize), vi * vj));
+                        emit(i as usize, j as usize, vi * vj);
                     }
                 }
             }
         }
-        trip
     }
 }
+
+/// Largest packed triangle (entries) in which the preconditioner's Gram matrix is
+/// summed (64 MB: n_h up to about 88); beyond, its products are sorted and merged.
+const DENSE_GRAM_MAX: usize = 8 << 20;
 
 /// `M⁻¹` for the conjugate gradients: sparse LDLᵀ of the Gram matrix plus a ridge.
 /// Variables no sample observes (empty rows) are masked out: the ridge alone would
@@ -1115,16 +1148,19 @@ mod tests {
                     c
                 })
                 .collect();
-            let mut gram = vec![0.0; dim * dim];
-            for (k, w) in rows.gram() {
-                let (i, j) = ((k >> 32) as usize, (k & 0xffff_ffff) as usize);
-                gram[i * dim + j] += w;
-            }
-            for i in 0..dim {
-                for j in i..dim {
-                    let want = dot(&cols[i], &cols[j]);
-                    let got = gram[i * dim + j] + if i == j { 0.0 } else { gram[j * dim + i] };
-                    assert!((got - want).abs() <= 1e-9 * (1.0 + want.abs()), "({i}, {j}): {got} vs {want}");
+            // Summed in a packed triangle, and as sorted products.
+            for dense_max in [usize::MAX, 0] {
+                let mut gram = vec![0.0; dim * dim];
+                for (k, w) in rows.gram_with(dense_max) {
+                    let (i, j) = ((k >> 32) as usize, (k & 0xffff_ffff) as usize);
+                    gram[i * dim + j] += w;
+                }
+                for i in 0..dim {
+                    for j in i..dim {
+                        let want = dot(&cols[i], &cols[j]);
+                        let got = gram[i * dim + j] + if i == j { 0.0 } else { gram[j * dim + i] };
+                        assert!((got - want).abs() <= 1e-9 * (1.0 + want.abs()), "({i}, {j}): {got} vs {want}");
+                    }
                 }
             }
         }
