@@ -228,7 +228,7 @@ class Fitter:
         self.n_h = n_h
         self.u_range = (float(u_range[0]), float(u_range[1]))
         self.tol = tol
-        self._local = threading.local()
+        self._sessions: dict[int, Any] = {}
         self._lock = threading.Lock()
         self._memo: dict[tuple[Any, ...], tuple[float, list[float]]] = {}
         self._columns: dict[tuple[Any, ...], Optional[NDArray[np.float64]]] = {}
@@ -291,13 +291,29 @@ class Fitter:
         return _run(rest, self.t, self._delayed(x, eff))
 
     # -- the profiled objective -----------------------------------------------------
-    def _solve(self, pb: dict[str, Any], nnls: bool = False) -> dict[str, Any]:
-        """One solve on this thread's session (a session serves one thread at a time, and
-        warm-starts from its previous solve: the neighbouring trial of the same search)."""
-        self.trials.check()
-        sess = getattr(self._local, "session", None)
+    def _session(self) -> Any:
+        """This thread's fit session (a session serves one thread at a time, and
+        warm-starts from its previous solve: the neighbouring trial of the same search).
+        A session whose thread has ended (a round's tasks) is taken over: building one
+        costs more than a solve (a noisy input's rows)."""
+        me = threading.get_ident()
+        with self._lock:
+            sess = self._sessions.get(me)
+            if sess is None:
+                alive = {t.ident for t in threading.enumerate()}
+                orphan = next((k for k in self._sessions if k not in alive), None)
+                if orphan is not None:
+                    sess = self._sessions[me] = self._sessions.pop(orphan)
         if sess is None:
-            sess = self._local.session = self._behind(self._u, self.n_h, self.u_range, self.stride)
+            sess = self._behind(self._u, self.n_h, self.u_range, self.stride)
+            with self._lock:
+                self._sessions[me] = sess
+        return sess
+
+    def _solve(self, pb: dict[str, Any], nnls: bool = False) -> dict[str, Any]:
+        """One solve on this thread's session (:meth:`_session`)."""
+        self.trials.check()
+        sess = self._session()
         return sess.solve(pb["z"], self.dt, pb["chain"]._core, pb["w"], pb["pre"], pb["post"], self.tol,
                           nnls=nnls)
 
@@ -1057,7 +1073,7 @@ def _response(effects: Effects, f_hz: Any) -> NDArray[np.complex128]:
     return Chain(None, effects).response(f_hz)
 
 
-def mode_response(p: dict[str, Any], f_hz: NDArray[np.float64]) -> NDArray[np.complex128]:
+def mode_response(p: dict[str, Any], f_hz: Any) -> NDArray[np.complex128]:
     """The vibration block's response ``w^2 / (s^2 + 2 zeta w s + w^2)`` of one mode at
     ``f_hz`` (what ``_response`` gives, without building a chain: a mode's band fit asks
     for thousands)."""
