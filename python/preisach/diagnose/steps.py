@@ -25,7 +25,7 @@ from preisach.diagnose import crossfit as cf
 from preisach.diagnose import kept, lag, rest, sessions
 from preisach.diagnose.crossfit import consistent, holdout_delay
 from preisach.diagnose.effects import CANDIDATES, FitState, Record, rmse
-from preisach.diagnose.initial import estimate, own_start
+from preisach.diagnose.initial import Starts, own_start
 from preisach.diagnose.ranges import ends_at_bound
 from preisach.diagnose.records import RecordLike, check_distinct, holdout_list, load_record, reversals
 from preisach.diagnose.registry import OWN_STEPS, REGISTRY, SLOW_FIRST, Scale, trivial
@@ -79,6 +79,11 @@ class Run:
     #: simulator's output as their input), and how its masses were treated.
     original: Optional[list[Record]] = None
     masses: str = ""
+    #: Each chain's starting staircase on each holdout, estimated once.
+    starts: Starts = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.starts = Starts(self.trials.map)
 
     @property
     def recs(self) -> list[Record]:
@@ -801,8 +806,10 @@ def holdout_delay_step(run: Run, found: Found, fl: Floors) -> None:
         return
     base = timing_chain(run, found.cur)
     e0 = run.holdout_errors(base)
-    sc0, _ = run.parts_of([own_start(base, h, e)[0] for h, e in zip(run.hos, e0)])
-    xf = holdout_delay(base, run.hos, run.holdout_errors, run.fitter.ranges["delay"]["delay_s"])
+    sc0, _ = run.parts_of([own_start(base, h, e, run.starts(base, h), run.trials.map)[0]
+                           for h, e in zip(run.hos, e0)])
+    xf = holdout_delay(base, run.hos, run.holdout_errors, run.fitter.ranges["delay"]["delay_s"], run.trials.map,
+                       run.starts)
     sc, _ = run.parts_of(xf["errors"])
     sc_plain, parts_x = run.parts_of(xf["plain"])
     g = gain(sc0, sc)
@@ -847,7 +854,8 @@ def _without_slow(run: Run, found: Found, x: str) -> tuple[FitState, float, np.n
         sc, parts = run.score_parts(st)
         return st, sc, parts, None
     base = timing_chain(run, st)
-    xf = holdout_delay(base, run.hos, run.holdout_errors, run.fitter.ranges["delay"]["delay_s"])
+    xf = holdout_delay(base, run.hos, run.holdout_errors, run.fitter.ranges["delay"]["delay_s"], run.trials.map,
+                       run.starts)
     sc, parts = run.parts_of(xf["plain"])
     rec = {"folds": xf["folds"], "added_s": xf["added_s"],
            "base_delay_s": float(base.effects.get("delay", {}).get("delay_s", 0.0))}
@@ -897,12 +905,12 @@ def initial_state(run: Run, found: Found, fl: Floors) -> None:
     if "initial_state" not in run.candidates or found.score <= 1.2 * fl.accept:
         return
     cur, hos = found.cur, run.hos
-    est = {h.name: estimate(cur, h) for h in hos}
+    est = {h.name: run.starts(cur, h) for h in hos}
     plain = run.holdout_errors(cur)
     # Only a staircase whose part's error is its own is kept; the gain is against the
     # same chain's errors without any (``found.score`` may be a cross-fitted score,
     # whose difference from these errors is no start's).
-    kept = [own_start(cur, ho, e, est[ho.name]) for e, ho in zip(plain, hos)]
+    kept = [own_start(cur, ho, e, est[ho.name], run.trials.map) for e, ho in zip(plain, hos)]
     sc0, sc = rmse(np.concatenate(plain)), rmse(np.concatenate([e for e, _ in kept]))
     g = gain(sc0, sc)
     run.say(f"initial state of each holdout: holdout RMSE {sc:.4g} (without: {sc0:.4g}) on "
