@@ -12,6 +12,7 @@ report. Each step reads the :class:`Run` and moves the :class:`Found` chain.
 from __future__ import annotations
 
 import math
+import threading
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -34,6 +35,8 @@ from preisach.diagnose.where import localize, noise_floor, repeatability_floor, 
 from preisach.model import PreisachModel, PreisachWarning
 
 Errors = list[np.ndarray]
+#: How many chains' holdout errors a run keeps.
+ERRORS_KEPT = 4
 
 
 @dataclass
@@ -84,6 +87,10 @@ class Run:
 
     def __post_init__(self) -> None:
         self.starts = Starts(self.trials.map)
+        #: The last chains' holdout errors, by the chain's JSON text (the steps after the
+        #: search score the chain found several times).
+        self._errors: dict[str, Errors] = {}
+        self._lock = threading.Lock()
 
     @property
     def recs(self) -> list[Record]:
@@ -100,7 +107,20 @@ class Run:
     def holdout_errors(self, st: FitState) -> Errors:
         """Errors on each holdout. A chain with drift or creep has them recalibrated
         across records for each half of the holdouts, from the training record and the
-        other halves (cross-fitting; see ``calibrate_slow``)."""
+        other halves (cross-fitting; see ``calibrate_slow``). The last chains' are kept
+        (copies are returned)."""
+        key = Chain(st.model, st.effects).to_json()
+        with self._lock:
+            got = self._errors.get(key)
+        if got is None:
+            got = self._holdout_errors(st)
+            with self._lock:
+                if len(self._errors) >= ERRORS_KEPT:
+                    del self._errors[next(iter(self._errors))]
+                self._errors[key] = got
+        return [e.copy() for e in got]
+
+    def _holdout_errors(self, st: FitState) -> Errors:
         if "drift" not in st.effects and "creep" not in st.effects:
             return self.rest_removed(st, [st.predict(h) - h.y for h in self.hos])
         errs = [np.empty(h.y.size) for h in self.hos]
@@ -304,23 +324,30 @@ def kept_run(tr: Record, hos: list[Record], n_h: int, candidates: Sequence[str],
 def reference(run: Run) -> tuple[Found, float, int]:
     """The chain the search starts from (the interpolated model, with a given chain's
     effects polished), its score, and what a finer hysteresis alone achieves (an effect
-    is detected only when its chain beats it as well as the interpolated one)."""
+    is detected only when its chain beats it as well as the interpolated one; fitted
+    beside the reference, on a fitter of its own)."""
     fitter = run.fitter
     cur_eff: Effects = {k: dict(v) for k, v in run.base.effects.items()}
     if cur_eff:
         cur_eff, _ = fitter.polish(cur_eff, list(cur_eff), sweeps=2)
         cur_eff = fitter.with_linear(cur_eff)
-    ref = fitter.state(cur_eff)
-    ref_score, ref_parts = run.score_parts(ref)
-    run.say(f"reference (interpolated) holdout RMSE {ref_score:.4g} (baseline {run.base.holdout_rmse:.4g})")
     nh2 = min(2 * run.n_h, max(run.n_h, reversals(run.tr.u) // 2), 120)
-    hyst_alone = ref_score
-    if nh2 > run.n_h:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", PreisachWarning)
-            hyst_alone = min(ref_score, run.score(fitter.state(cur_eff, n_h=nh2)))
+    with run.trials.tasks(1) as ex:
+        fut = ex.submit(_alone, run, cur_eff, nh2) if nh2 > run.n_h else None
+        ref = fitter.state(cur_eff)
+        ref_score, ref_parts = run.score_parts(ref)
+        run.say(f"reference (interpolated) holdout RMSE {ref_score:.4g} (baseline {run.base.holdout_rmse:.4g})")
+        hyst_alone = ref_score if fut is None else min(ref_score, fut.result())
+    if fut is not None:
         run.say(f"finer hysteresis alone (n_h={nh2}): holdout RMSE {hyst_alone:.4g}")
     return Found(ref, ref_score, ref_parts), hyst_alone, nh2
+
+
+def _alone(run: Run, eff: Effects, nh2: int) -> float:
+    """The holdout score of the chain with effects ``eff`` and a finer hysteresis (``nh2``)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PreisachWarning)
+        return run.score(run.fitter.state(eff, n_h=nh2))
 
 
 def where(run: Run, found: Found, hyst_alone: float,
