@@ -15,6 +15,7 @@ import math
 import threading
 import time
 import warnings
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence, Union
@@ -321,26 +322,30 @@ def kept_run(tr: Record, hos: list[Record], n_h: int, candidates: Sequence[str],
 
 
 # -- reference and where ---------------------------------------------------------------
-def reference(run: Run) -> tuple[Found, float, int]:
+def reference(run: Run, ex: Executor) -> tuple[Found, Callable[[], float], int]:
     """The chain the search starts from (the interpolated model, with a given chain's
     effects polished), its score, and what a finer hysteresis alone achieves (an effect
-    is detected only when its chain beats it as well as the interpolated one; fitted
-    beside the reference, on a fitter of its own)."""
+    is detected only when its chain beats it as well as the interpolated one): fitted on
+    a fitter of its own in ``ex`` beside the reference and what follows; its score is the
+    function returned (it waits for the fit)."""
     fitter = run.fitter
     cur_eff: Effects = {k: dict(v) for k, v in run.base.effects.items()}
     if cur_eff:
         cur_eff, _ = fitter.polish(cur_eff, list(cur_eff), sweeps=2)
         cur_eff = fitter.with_linear(cur_eff)
     nh2 = min(2 * run.n_h, max(run.n_h, reversals(run.tr.u) // 2), 120)
-    with run.trials.tasks(1) as ex:
-        fut = ex.submit(_alone, run, cur_eff, nh2) if nh2 > run.n_h else None
-        ref = fitter.state(cur_eff)
-        ref_score, ref_parts = run.score_parts(ref)
-        run.say(f"reference (interpolated) holdout RMSE {ref_score:.4g} (baseline {run.base.holdout_rmse:.4g})")
-        hyst_alone = ref_score if fut is None else min(ref_score, fut.result())
-    if fut is not None:
+    fut = ex.submit(_alone, run, cur_eff, nh2) if nh2 > run.n_h else None
+    ref = fitter.state(cur_eff)
+    ref_score, ref_parts = run.score_parts(ref)
+    run.say(f"reference (interpolated) holdout RMSE {ref_score:.4g} (baseline {run.base.holdout_rmse:.4g})")
+
+    def alone() -> float:
+        if fut is None:
+            return ref_score
+        hyst_alone = min(ref_score, fut.result())
         run.say(f"finer hysteresis alone (n_h={nh2}): holdout RMSE {hyst_alone:.4g}")
-    return Found(ref, ref_score, ref_parts), hyst_alone, nh2
+        return hyst_alone
+    return Found(ref, ref_score, ref_parts), alone, nh2
 
 
 def _alone(run: Run, eff: Effects, nh2: int) -> float:
@@ -350,9 +355,10 @@ def _alone(run: Run, eff: Effects, nh2: int) -> float:
         return run.score(run.fitter.state(eff, n_h=nh2))
 
 
-def where(run: Run, found: Found, hyst_alone: float,
+def where(run: Run, found: Found, alone: Callable[[], float],
           nh2: int) -> tuple[Floors, list[dict[str, Any]], dict[str, Any]]:
-    """The floors, the residual's localization on every record and its signatures."""
+    """The floors, the residual's localization on every record and its signatures
+    (``alone``: what a finer hysteresis alone achieves, taken last)."""
     ref, recs = found.cur, run.recs
     floor = float(np.median([noise_floor(r.y - ref.predict(r)) for r in recs]))
     floor_j = noise_floor(run.fitter.y - run.fitter.predict(ref)) ** 2
@@ -372,7 +378,7 @@ def where(run: Run, found: Found, hyst_alone: float,
     for f in (run.fitter, run.fine, run.fitter.slow):
         if f is not None:
             f.min_delay = scale.min_delay  # the record's timing fits below it (``Fitter.timing``)
-    return Floors(floor, floor_j, rep_floor, found.score, hyst_alone, nh2, scale), loc, sig
+    return Floors(floor, floor_j, rep_floor, found.score, alone(), nh2, scale), loc, sig
 
 
 # -- search ----------------------------------------------------------------------------
