@@ -18,7 +18,6 @@ import numpy as np
 import rig
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
 from preisach import PreisachModel, PreisachWarning
 from preisach.chain import Chain
 from preisach.diagnose import crossfit, initial, steps
