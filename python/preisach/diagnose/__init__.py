@@ -129,8 +129,9 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
         run = steps.Run(tr, hos, n_h, tuple(candidates), min_shrink, trials, say, base, fitter, fine, stride,
                         sstride, search_rate_hz)
         steps.mark_rest(run)
-    found, hyst_alone, nh2 = steps.reference(run)
-    floors, where, sig = steps.where(run, found, hyst_alone, nh2)
+    with trials.tasks(1) as ex:  # the finer hysteresis alone is fitted beside the reference and where
+        found, alone, nh2 = steps.reference(run, ex)
+        floors, where, sig = steps.where(run, found, alone, nh2)
     steps.search(run, found, floors)
     steps.refine(run, found, floors)
     steps.holdout_effects(run, found, floors)

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from preisach.diagnose.effects import FitState, Record, _grid_then_parabola
-from preisach.diagnose.initial import own_start, predict_from, staircases
+from preisach.diagnose.initial import Map, Start, estimate, own_start, predictor, staircases
 from preisach.diagnose.ranges import Bound, Ranges, delay_grid
 from preisach.diagnose.registry import REGISTRY
 from preisach.diagnose.search import Effects, Fitter, Trials
@@ -50,13 +50,14 @@ def shifted(y: NDArray[np.float64], samples: float) -> NDArray[np.float64]:
     return out
 
 
-def profiles(st: FitState, rec: Record) -> NDArray[np.float64]:
+def profiles(st: FitState, rec: Record, run: Map = map) -> NDArray[np.float64]:
     """The chain's output on ``rec`` without its delay: from rest (the first row) and
     from each starting staircase (``initial.staircases``; the memory of unrecorded
-    history, which only the part before the input swept its range shows)."""
+    history, which only the part before the input swept its range shows). ``run`` (a
+    ``map``) takes the rows."""
     e = {k: v for k, v in st.effects.items() if k != "delay"}
     bare = FitState(st.model, e, st.train_rmse)
-    return np.array([predict_from(bare, rec, ex) for ex in [None] + staircases(bare)])
+    return np.array(list(run(predictor(bare, rec), [None] + staircases(bare))))
 
 
 def distinct(rows: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -126,7 +127,8 @@ def _fit_delay(st: FitState, parts: list[tuple[Record, slice]], bound: Bound,
     return float(min(max(d, 0.0), hi))
 
 
-def holdout_delay(st: FitState, hos: list[Record], errors: Errors, bound: Bound) -> dict[str, Any]:
+def holdout_delay(st: FitState, hos: list[Record], errors: Errors, bound: Bound, run: Map = map,
+                  start: Optional[Start] = None) -> dict[str, Any]:
     """A delay only the holdouts carry, cross-fitted: the added delay fitted on the other
     holdouts (or the other half of a single one) and each holdout (half) scored with it,
     with its own starting staircase where its start carries an error of its own
@@ -135,8 +137,11 @@ def holdout_delay(st: FitState, hos: list[Record], errors: Errors, bound: Bound)
     Returns ``errors`` (per holdout, cross-fitted, as ``errors`` computes them for a
     chain, the staircases applied), ``plain`` (the same without them), ``folds`` (what
     was fitted on what, and the delay found), ``added_s`` (the delay fitted on every
-    holdout, for the saved chain) and ``state`` (the chain with it)."""
-    outs = {h.name: distinct(profiles(st, h)) for h in hos}
+    holdout, for the saved chain) and ``state`` (the chain with it). ``run`` (a ``map``)
+    takes the chain's runs; ``start``: a chain's starting staircase on a record
+    (default ``initial.estimate``)."""
+    start = start or (lambda s, r: estimate(s, r, run=run))
+    outs = {h.name: distinct(profiles(st, h, run)) for h in hos}
     memo: Memo = {}
     out = [np.empty(h.y.size) for h in hos]
     plain = [np.empty(h.y.size) for h in hos]
@@ -147,7 +152,7 @@ def holdout_delay(st: FitState, hos: list[Record], errors: Errors, bound: Bound)
             d = _fit_delay(st, fit, bound, outs, memo)
             sd = _with_delay(st, d)
             plain[i] = errors(sd)[i]
-            out[i] = own_start(sd, h, plain[i])[0]
+            out[i] = own_start(sd, h, plain[i], start(sd, h), run)[0]
             folds.append({"fit": [g.name for g, _ in fit], "score": h.name, "added_s": d})
     else:
         h = hos[0]
@@ -157,7 +162,7 @@ def holdout_delay(st: FitState, hos: list[Record], errors: Errors, bound: Bound)
             sd = _with_delay(st, d)
             e = errors(sd)[0]
             plain[0][score] = e[score]
-            out[0][score] = own_start(sd, h, e)[0][score]
+            out[0][score] = own_start(sd, h, e, start(sd, h), run)[0][score]
             folds.append({"fit": [f"{h.name} {'first' if label == 'second' else 'second'} half"],
                           "score": f"{h.name} {label} half", "added_s": d})
     added = _fit_delay(st, [(h, slice(None)) for h in hos], bound, outs, memo)

@@ -12,13 +12,21 @@ that part's error is its own (``concentrated``).
 """
 from __future__ import annotations
 
-from typing import Callable, Optional
+import threading
+from typing import Any, Callable, Optional
 
 import numpy as np
 from numpy.typing import NDArray
 
 from preisach.chain import Chain
 from preisach.diagnose.effects import FitState, Record, rmse
+
+#: A ``map``: the builtin, or a thread pool's (``search.Trials.map``), which keeps the order.
+Map = Callable[..., Any]
+#: A starting staircase estimated for a chain on a record, with the RMSE of the part
+#: before the sweep before and after it (``estimate``).
+Estimate = tuple[list[float], float, float]
+Start = Callable[[FitState, Record], Estimate]
 
 
 def swept(u: NDArray[np.float64]) -> int:
@@ -35,10 +43,22 @@ def predict_from(st: FitState, rec: Record, extrema: Optional[list[float]]) -> N
     """The chain's output on ``rec`` with the hysteresis memory after ``extrema``."""
     if not extrema:
         return st.predict(rec)
+    return predictor(st, rec)(extrema)
+
+
+def predictor(st: FitState, rec: Record) -> Callable[[Optional[list[float]]], NDArray[np.float64]]:
+    """``predict_from`` of the chain on ``rec`` as a function of the extrema, the chain's
+    blocks built once (for many staircases; safe to call from several threads)."""
     blocks = Chain(st.model, st.effects).blocks
-    blocks[0] = dict(blocks[0], initial_extrema=[float(x) for x in extrema])
-    y: NDArray[np.float64] = Chain.from_blocks(blocks).predict(rec.t, rec.u)
-    return y
+
+    def one(extrema: Optional[list[float]]) -> NDArray[np.float64]:
+        if not extrema:
+            return st.predict(rec)
+        b = [dict(blocks[0], initial_extrema=[float(x) for x in extrema])] + blocks[1:]
+        y: NDArray[np.float64] = Chain.from_blocks(b).predict(rec.t, rec.u)
+        return y
+
+    return one
 
 
 def fitted_part(rec: Record) -> int:
@@ -62,40 +82,44 @@ def staircases(st: FitState, levels: int = 9) -> list[list[float]]:
             for M in grid[1:] for m in [None] + [float(x) for x in grid if x < M]]
 
 
-def estimate(st: FitState, rec: Record, levels: int = 9) -> tuple[list[float], float, float]:
+def estimate(st: FitState, rec: Record, levels: int = 9, run: Map = map) -> Estimate:
     """The starting staircase of ``rec`` (``[M, m]``, ``[M]`` or none) that fits the
     part before the sweep best (``fitted_part``), on a grid of the model's range, then
-    refined (``refine``); returns it with the RMSE of that part before and after."""
+    refined (``refine``); returns it with the RMSE of that part before and after.
+    ``run`` (a ``map``) takes the staircases of the grid and of each move."""
     k = fitted_part(rec)
     part = Record(rec.name, rec.t[:k], rec.u[:k], rec.y[:k], rec.dt)
+    pred = predictor(st, part)
 
     def err(ex: list[float]) -> float:
-        return rmse(predict_from(st, part, ex) - part.y)
+        return rmse(pred(ex) - part.y)
 
-    before = err([])
+    grid = staircases(st, levels)
+    scored = list(run(err, [[]] + grid))
+    before = scored[0]
     best: tuple[float, list[float]] = (before, [])
-    for ex in staircases(st, levels):
-        e = err(ex)
+    for ex, e in zip(grid, scored[1:]):
         if e < best[0]:
             best = (e, ex)
     if not best[1]:
         return [], before, before
     lo, hi = st.model.u_range
-    ex, after = refine(err, best[1], best[0], (hi - lo) / (levels - 1))
+    ex, after = refine(err, best[1], best[0], (hi - lo) / (levels - 1), run=run)
     return ex, before, after
 
 
 def refine(err: Callable[[list[float]], float], ex: list[float], e: float, step: float,
-           rounds: int = 4) -> tuple[list[float], float]:
+           rounds: int = 4, run: Map = map) -> tuple[list[float], float]:
     """The staircase ``ex`` (error ``e``) moved by half the grid's ``step``: the best
     move of one extremum up or down, while ``err`` falls (at most four moves; the order
     ``m < M`` kept), then again with the step halved, ``rounds`` times (a pattern
-    search)."""
+    search). ``run`` (a ``map``) takes the moves of each step."""
     for _ in range(rounds):
         step /= 2
         for _move in range(4):
             trials = [[x + s if j == i else x for j, x in enumerate(ex)] for i in range(len(ex)) for s in (-step, step)]
-            scored = [(err(t), t) for t in trials if len(t) == 1 or t[1] < t[0]]
+            trials = [t for t in trials if len(t) == 1 or t[1] < t[0]]
+            scored = list(zip(run(err, trials), trials))
             if not scored or min(scored)[0] >= e:
                 break
             e, ex = min(scored)
@@ -103,14 +127,37 @@ def refine(err: Callable[[list[float]], float], ex: list[float], e: float, step:
 
 
 def own_start(st: FitState, rec: Record, err: NDArray[np.float64],
-              est: Optional[tuple[list[float], float, float]] = None) -> tuple[NDArray[np.float64], list[float]]:
+              est: Optional[Estimate] = None,
+              run: Map = map) -> tuple[NDArray[np.float64], list[float]]:
     """The error ``err`` of chain ``st`` on ``rec`` with the starting staircase
     estimated on it (``est``, default ``estimate(st, rec)``), where the part before the
     sweep carries an error of its own (``concentrated``); returns the error and the
-    staircase kept (empty: none)."""
-    ex, before, after = est if est is not None else estimate(st, rec)
+    staircase kept (empty: none). ``run`` (a ``map``) takes the chain's runs."""
+    ex, before, after = est if est is not None else estimate(st, rec, run=run)
     k = fitted_part(rec)
     if not ex or not concentrated(before, after, rmse(err[k:]) if k < err.size else 0.0):
         return err, []
-    corrected: NDArray[np.float64] = err + predict_from(st, rec, ex) - st.predict(rec)
+    from_ex, from_rest = run(predictor(st, rec), [ex, []])
+    corrected: NDArray[np.float64] = err + from_ex - from_rest
     return corrected, ex
+
+
+class Starts:
+    """``estimate`` kept by chain (its JSON text: the same blocks) and record (its name),
+    for the steps of one diagnosis that judge the same chain's starts; ``run`` (a ``map``)
+    is the one ``estimate`` takes. Safe to call from several threads."""
+
+    def __init__(self, run: Map = map) -> None:
+        self.run = run
+        self._kept: dict[tuple[str, str], Estimate] = {}
+        self._lock = threading.Lock()
+
+    def __call__(self, st: FitState, rec: Record) -> Estimate:
+        key = (Chain(st.model, st.effects).to_json(), rec.name)
+        with self._lock:
+            got = self._kept.get(key)
+        if got is None:
+            got = estimate(st, rec, run=self.run)
+            with self._lock:
+                self._kept[key] = got
+        return list(got[0]), got[1], got[2]

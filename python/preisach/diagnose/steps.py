@@ -12,8 +12,10 @@ report. Each step reads the :class:`Run` and moves the :class:`Found` chain.
 from __future__ import annotations
 
 import math
+import threading
 import time
 import warnings
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence, Union
@@ -25,7 +27,7 @@ from preisach.diagnose import crossfit as cf
 from preisach.diagnose import kept, lag, rest, sessions
 from preisach.diagnose.crossfit import consistent, holdout_delay
 from preisach.diagnose.effects import CANDIDATES, FitState, Record, rmse
-from preisach.diagnose.initial import estimate, own_start
+from preisach.diagnose.initial import Starts, own_start
 from preisach.diagnose.ranges import ends_at_bound
 from preisach.diagnose.records import RecordLike, check_distinct, holdout_list, load_record, reversals
 from preisach.diagnose.registry import OWN_STEPS, REGISTRY, SLOW_FIRST, Scale, trivial
@@ -34,6 +36,8 @@ from preisach.diagnose.where import localize, noise_floor, repeatability_floor, 
 from preisach.model import PreisachModel, PreisachWarning
 
 Errors = list[np.ndarray]
+#: How many chains' holdout errors a run keeps.
+ERRORS_KEPT = 4
 
 
 @dataclass
@@ -79,6 +83,15 @@ class Run:
     #: simulator's output as their input), and how its masses were treated.
     original: Optional[list[Record]] = None
     masses: str = ""
+    #: Each chain's starting staircase on each holdout, estimated once.
+    starts: Starts = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.starts = Starts(self.trials.map)
+        #: The last chains' holdout errors, by the chain's JSON text (the steps after the
+        #: search score the chain found several times).
+        self._errors: dict[str, Errors] = {}
+        self._lock = threading.Lock()
 
     @property
     def recs(self) -> list[Record]:
@@ -95,7 +108,20 @@ class Run:
     def holdout_errors(self, st: FitState) -> Errors:
         """Errors on each holdout. A chain with drift or creep has them recalibrated
         across records for each half of the holdouts, from the training record and the
-        other halves (cross-fitting; see ``calibrate_slow``)."""
+        other halves (cross-fitting; see ``calibrate_slow``). The last chains' are kept
+        (copies are returned)."""
+        key = Chain(st.model, st.effects).to_json()
+        with self._lock:
+            got = self._errors.get(key)
+        if got is None:
+            got = self._holdout_errors(st)
+            with self._lock:
+                if len(self._errors) >= ERRORS_KEPT:
+                    del self._errors[next(iter(self._errors))]
+                self._errors[key] = got
+        return [e.copy() for e in got]
+
+    def _holdout_errors(self, st: FitState) -> Errors:
         if "drift" not in st.effects and "creep" not in st.effects:
             return self.rest_removed(st, [st.predict(h) - h.y for h in self.hos])
         errs = [np.empty(h.y.size) for h in self.hos]
@@ -296,31 +322,43 @@ def kept_run(tr: Record, hos: list[Record], n_h: int, candidates: Sequence[str],
 
 
 # -- reference and where ---------------------------------------------------------------
-def reference(run: Run) -> tuple[Found, float, int]:
+def reference(run: Run, ex: Executor) -> tuple[Found, Callable[[], float], int]:
     """The chain the search starts from (the interpolated model, with a given chain's
     effects polished), its score, and what a finer hysteresis alone achieves (an effect
-    is detected only when its chain beats it as well as the interpolated one)."""
+    is detected only when its chain beats it as well as the interpolated one): fitted on
+    a fitter of its own in ``ex`` beside the reference and what follows; its score is the
+    function returned (it waits for the fit)."""
     fitter = run.fitter
     cur_eff: Effects = {k: dict(v) for k, v in run.base.effects.items()}
     if cur_eff:
         cur_eff, _ = fitter.polish(cur_eff, list(cur_eff), sweeps=2)
         cur_eff = fitter.with_linear(cur_eff)
+    nh2 = min(2 * run.n_h, max(run.n_h, reversals(run.tr.u) // 2), 120)
+    fut = ex.submit(_alone, run, cur_eff, nh2) if nh2 > run.n_h else None
     ref = fitter.state(cur_eff)
     ref_score, ref_parts = run.score_parts(ref)
     run.say(f"reference (interpolated) holdout RMSE {ref_score:.4g} (baseline {run.base.holdout_rmse:.4g})")
-    nh2 = min(2 * run.n_h, max(run.n_h, reversals(run.tr.u) // 2), 120)
-    hyst_alone = ref_score
-    if nh2 > run.n_h:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", PreisachWarning)
-            hyst_alone = min(ref_score, run.score(fitter.state(cur_eff, n_h=nh2)))
+
+    def alone() -> float:
+        if fut is None:
+            return ref_score
+        hyst_alone = min(ref_score, fut.result())
         run.say(f"finer hysteresis alone (n_h={nh2}): holdout RMSE {hyst_alone:.4g}")
-    return Found(ref, ref_score, ref_parts), hyst_alone, nh2
+        return hyst_alone
+    return Found(ref, ref_score, ref_parts), alone, nh2
 
 
-def where(run: Run, found: Found, hyst_alone: float,
+def _alone(run: Run, eff: Effects, nh2: int) -> float:
+    """The holdout score of the chain with effects ``eff`` and a finer hysteresis (``nh2``)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PreisachWarning)
+        return run.score(run.fitter.state(eff, n_h=nh2))
+
+
+def where(run: Run, found: Found, alone: Callable[[], float],
           nh2: int) -> tuple[Floors, list[dict[str, Any]], dict[str, Any]]:
-    """The floors, the residual's localization on every record and its signatures."""
+    """The floors, the residual's localization on every record and its signatures
+    (``alone``: what a finer hysteresis alone achieves, taken last)."""
     ref, recs = found.cur, run.recs
     floor = float(np.median([noise_floor(r.y - ref.predict(r)) for r in recs]))
     floor_j = noise_floor(run.fitter.y - run.fitter.predict(ref)) ** 2
@@ -340,7 +378,7 @@ def where(run: Run, found: Found, hyst_alone: float,
     for f in (run.fitter, run.fine, run.fitter.slow):
         if f is not None:
             f.min_delay = scale.min_delay  # the record's timing fits below it (``Fitter.timing``)
-    return Floors(floor, floor_j, rep_floor, found.score, hyst_alone, nh2, scale), loc, sig
+    return Floors(floor, floor_j, rep_floor, found.score, alone(), nh2, scale), loc, sig
 
 
 # -- search ----------------------------------------------------------------------------
@@ -801,8 +839,10 @@ def holdout_delay_step(run: Run, found: Found, fl: Floors) -> None:
         return
     base = timing_chain(run, found.cur)
     e0 = run.holdout_errors(base)
-    sc0, _ = run.parts_of([own_start(base, h, e)[0] for h, e in zip(run.hos, e0)])
-    xf = holdout_delay(base, run.hos, run.holdout_errors, run.fitter.ranges["delay"]["delay_s"])
+    sc0, _ = run.parts_of([own_start(base, h, e, run.starts(base, h), run.trials.map)[0]
+                           for h, e in zip(run.hos, e0)])
+    xf = holdout_delay(base, run.hos, run.holdout_errors, run.fitter.ranges["delay"]["delay_s"], run.trials.map,
+                       run.starts)
     sc, _ = run.parts_of(xf["errors"])
     sc_plain, parts_x = run.parts_of(xf["plain"])
     g = gain(sc0, sc)
@@ -847,7 +887,8 @@ def _without_slow(run: Run, found: Found, x: str) -> tuple[FitState, float, np.n
         sc, parts = run.score_parts(st)
         return st, sc, parts, None
     base = timing_chain(run, st)
-    xf = holdout_delay(base, run.hos, run.holdout_errors, run.fitter.ranges["delay"]["delay_s"])
+    xf = holdout_delay(base, run.hos, run.holdout_errors, run.fitter.ranges["delay"]["delay_s"], run.trials.map,
+                       run.starts)
     sc, parts = run.parts_of(xf["plain"])
     rec = {"folds": xf["folds"], "added_s": xf["added_s"],
            "base_delay_s": float(base.effects.get("delay", {}).get("delay_s", 0.0))}
@@ -897,12 +938,12 @@ def initial_state(run: Run, found: Found, fl: Floors) -> None:
     if "initial_state" not in run.candidates or found.score <= 1.2 * fl.accept:
         return
     cur, hos = found.cur, run.hos
-    est = {h.name: estimate(cur, h) for h in hos}
+    est = {h.name: run.starts(cur, h) for h in hos}
     plain = run.holdout_errors(cur)
     # Only a staircase whose part's error is its own is kept; the gain is against the
     # same chain's errors without any (``found.score`` may be a cross-fitted score,
     # whose difference from these errors is no start's).
-    kept = [own_start(cur, ho, e, est[ho.name]) for e, ho in zip(plain, hos)]
+    kept = [own_start(cur, ho, e, est[ho.name], run.trials.map) for e, ho in zip(plain, hos)]
     sc0, sc = rmse(np.concatenate(plain)), rmse(np.concatenate([e for e, _ in kept]))
     g = gain(sc0, sc)
     run.say(f"initial state of each holdout: holdout RMSE {sc:.4g} (without: {sc0:.4g}) on "
