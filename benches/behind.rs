@@ -86,7 +86,7 @@ fn behind(c: &mut Criterion) {
     g.bench_function("project", |b| b.iter(|| black_box(fit.project(&sol, &z, &mut lti, &terms).unwrap().2)));
     // The projections of the profile's five solutions in turn (each one's neighbour the
     // last one projected, as a search asks for them).
-    let sols: Vec<_> = along.iter_mut().map(|l| (fit.solve(&z, l, &terms, tol, 300, false).unwrap())).collect();
+    let sols: Vec<_> = along.iter_mut().map(|l| fit.solve(&z, l, &terms, tol, 300, false).unwrap()).collect();
     g.bench_function("project_profile_5", |b| {
         b.iter(|| {
             let mut e = 0.0;
