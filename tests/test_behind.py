@@ -180,7 +180,7 @@ def test_kept_projection_is_the_nnls_optimum_on_simulated_records(source, seed):
     plain = _dense(u, {})
     cols = np.column_stack([plain[:, :-1], plain[:, -1], -plain[:, -1]])
     iu = np.triu_indices(N_H)
-    for k in range(3):
+    for _k in range(3):
         effects = {"lowpass": {"cutoff_hz": float(rng.uniform(200.0, 1500.0)), "order": int(rng.integers(1, 3))}}
         A = _dense(u, effects)
         z = y + float(rng.uniform(0.0, 0.3)) * np.ptp(y) * np.sin(float(rng.uniform(3.0, 9.0)) * u)
