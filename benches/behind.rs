@@ -5,7 +5,8 @@
 //! ζ = 0.02) and creep, noisy output; the fit on windows of 8 samples (25 000 of them).
 //! Timed: building the problem (`new`), a cold solve, a profile of five neighbouring
 //! chains warm-started one from the other (the mode's frequency stepped by 0.5 %, as a
-//! line search moves it), and the masses' projection (`project`) of one solution.
+//! line search moves it), the masses' projection (`project`) of one solution, and the
+//! projections of the profile's five solutions in turn (`project_profile_5`).
 
 use std::hint::black_box;
 use std::time::Duration;
@@ -83,6 +84,18 @@ fn behind(c: &mut Criterion) {
     });
     let sol = fit.solve(&z, &mut lti, &terms, tol, 300, false).unwrap();
     g.bench_function("project", |b| b.iter(|| black_box(fit.project(&sol, &z, &mut lti, &terms).unwrap().2)));
+    // The projections of the profile's five solutions in turn (each one's neighbour the
+    // last one projected, as a search asks for them).
+    let sols: Vec<_> = along.iter_mut().map(|l| fit.solve(&z, l, &terms, tol, 300, false).unwrap()).collect();
+    g.bench_function("project_profile_5", |b| {
+        b.iter(|| {
+            let mut e = 0.0;
+            for (s, l) in sols.iter().zip(along.iter_mut()) {
+                e += fit.project(s, &z, l, &terms).unwrap().2;
+            }
+            black_box(e)
+        })
+    });
     g.finish();
 }
 

@@ -138,6 +138,72 @@ def test_masses_projection_equals_scipy_nnls_of_the_optimum_output(source, effec
         assert np.sqrt(np.mean((want - h_star) ** 2)) > 1e-4 * span
 
 
+def _unit(u):
+    """``u`` mapped onto [-0.05, 1.05] (a little beyond the model range, as a fit takes it)."""
+    return -0.05 + 1.1 * (u - u.min()) / np.ptp(u)
+
+
+def _sim_stage(seed, n=6000):
+    """The project's simulator (the paper stage, random seed) driven by a random walk."""
+    from preisach.sim import Stage
+    t, u = _walk(n, seed)
+    y = Stage.preset("paper", seed=seed).run(10.0 * u)
+    return u, y
+
+
+def _rig(seed, n=6000):
+    """The independent rig's training record (its first ``n`` samples, at 10 kHz)."""
+    import rig
+    rec = rig.make_case("none", seed)["train"]
+    return _unit(rec["u"][:n]), rec["y"][:n]
+
+
+def _independent(seed, n=6000):
+    """The independent stage's training record (10 kHz)."""
+    import independent_stage
+    rec = independent_stage.make_stage(seed, ("lowpass",), fs=10e3, dur=n * DT)["train"]
+    return _unit(rec["u"][:n]), rec["y"][:n]
+
+
+@pytest.mark.parametrize("source", [_sim_stage, _rig, _independent])
+@pytest.mark.parametrize("seed", [3, 11])
+def test_kept_projection_is_the_nnls_optimum_on_simulated_records(source, seed):
+    """Several projections in turn on one input (what the fit keeps is reused) from
+    records of both simulators: the output equals scipy.optimize.nnls's on the dense
+    relay columns (the optimum's output is unique where the masses are not), the masses
+    satisfy the optimality conditions, and the structured fit of the same output gives
+    the same output."""
+    from scipy.optimize import nnls
+    u, y = source(seed)
+    rng = np.random.default_rng(seed)
+    b = _preisach.Behind(u, N_H, RANGE)
+    plain = _dense(u, {})
+    cols = np.column_stack([plain[:, :-1], plain[:, -1], -plain[:, -1]])
+    iu = np.triu_indices(N_H)
+    for _k in range(3):
+        effects = {"lowpass": {"cutoff_hz": float(rng.uniform(200.0, 1500.0)), "order": int(rng.integers(1, 3))}}
+        A = _dense(u, effects)
+        z = y + float(rng.uniform(0.0, 0.3)) * np.ptp(y) * np.sin(float(rng.uniform(3.0, 9.0)) * u)
+        res = b.solve(z, DT, _blocks(effects), tol=1e-13, max_iter=5000, warm=False, nnls=True)
+        h_star = plain @ np.linalg.lstsq(A, z, rcond=None)[0]
+        span = np.ptp(h_star)
+        want = cols @ nnls(cols, h_star, maxiter=50 * cols.shape[1])[0]
+        model = PreisachModel._wrap(res["model"], "interpolated")
+        got = model.predict(u)
+        assert np.max(np.abs(got - want)) < 1e-5 * span
+        # Optimality: with r the residual, the gradient plain' r is zero for the offset
+        # and every cell with mass, and >= 0 for the cells at zero.
+        w = model.weights[iu]
+        g = plain.T @ (got - h_star)
+        tol = 1e-6 * np.max(np.abs(plain.T @ h_star))
+        assert np.all(w >= 0.0)
+        assert abs(g[-1]) < tol
+        assert np.all(g[:-1] > -tol)
+        assert np.all(np.abs(g[:-1][w > 1e-9 * w.max()]) < tol)
+        fitted, _ = _preisach.fit(u, h_star, N_H, RANGE, solver="structured", interpolated=True, diagonal_floor=0.0)
+        assert np.max(np.abs(PreisachModel._wrap(fitted, "interpolated").predict(u) - got)) < 1e-5 * span
+
+
 def test_bad_arguments_are_named():
     t, u = _input(n=500)
     b = _preisach.Behind(u, N_H, RANGE)

@@ -32,9 +32,10 @@
 use clarabel::algebra::CscMatrix;
 use clarabel::qdldl::{QDLDLFactorisation, QDLDLSettingsBuilder};
 
+use super::projection::Projection;
 use super::qp::{csc_upper, key};
 use super::rows::{combine, emit_row};
-use super::{fit, FitOptions, FitReport, Solver};
+use super::FitReport;
 use crate::blocks::lti::{Discretization, Filter, Lti};
 use crate::error::{check_scalar, check_signal, PreisachError, Result};
 use crate::grid::Grid;
@@ -565,6 +566,8 @@ pub struct Behind {
     /// Last unconstrained solution (Everett values, offset, extra coefficients), for warm
     /// starts (used when the number of extra terms matches).
     last: Option<Vec<f64>>,
+    /// The masses' projection on this input (built by the first [`Behind::project`]).
+    projection: Option<Projection>,
 }
 
 /// Unconstrained optimum of [`Behind::solve`].
@@ -611,7 +614,7 @@ impl Behind {
         let mut trip = rows.gram();
         trip.extend((0..dim).map(|i| (key(i, i), 0.0)));
         let pre = Precond::new(dim, trip)?;
-        Ok(Behind { grid, u: u.to_vec(), rows, pre, last: None })
+        Ok(Behind { grid, u: u.to_vec(), rows, pre, last: None, projection: None })
     }
 
     /// Input samples per output sample (the averaging window).
@@ -869,15 +872,11 @@ impl Behind {
         let n = self.rows.n_out();
         let mut h_star = vec![0.0; nf];
         self.rows.forward_fine(&sol.x, &mut h_star);
-        let fo = FitOptions {
-            n_h: self.grid.n_h(),
-            u_range: Some((self.grid.lo(), self.grid.hi())),
-            reg: 0.0,
-            solver: Solver::Auto,
-            interpolated: true,
-            diagonal_floor: 0.0,
+        let projection = match &mut self.projection {
+            Some(p) => p,
+            None => self.projection.insert(Projection::new(&self.grid, &self.u)?),
         };
-        let (model, rep) = fit(&self.u, &h_star, &fo)?;
+        let (model, rep) = projection.project(&sol.x, &h_star)?;
         // The model's output on the output samples, through the dynamics.
         let mut x = model.everett_values();
         x.push(model.offset());

@@ -6,6 +6,7 @@ pub mod active;
 pub mod filtered;
 pub mod nnls;
 mod order;
+pub mod projection;
 pub mod qp;
 pub mod rows;
 
@@ -127,7 +128,7 @@ pub fn default_range(u: &[f64]) -> Result<(f64, f64)> {
 
 /// Range of a finite signal (four lanes of plain comparisons: they vectorize, where
 /// the NaN-aware `f64::min` does not).
-fn min_max(u: &[f64]) -> (f64, f64) {
+pub(super) fn min_max(u: &[f64]) -> (f64, f64) {
     let mut lo = [f64::INFINITY; 4];
     let mut hi = [f64::NEG_INFINITY; 4];
     let chunks = u.chunks_exact(4);
@@ -148,7 +149,7 @@ fn min_max(u: &[f64]) -> (f64, f64) {
 
 /// Excitation statistics on the quantized levels (consecutive repeats may be dropped:
 /// they change nothing here): (reversals, never switched on, switched on but never off).
-fn excitation(q: &[u32], n_h: usize) -> (usize, usize, usize) {
+pub(super) fn excitation(q: &[u32], n_h: usize) -> (usize, usize, usize) {
     let mut reversals = 0;
     let mut dir = 0i8;
     for w in q.windows(2) {
@@ -251,6 +252,54 @@ fn above_floor(grid: &Grid, u: &[f64], y: &[f64], top: usize, floor: f64, interp
     Ok(out)
 }
 
+/// The quantized input levels, consecutive repeats dropped (what the relays see).
+pub(super) fn seen_levels(grid: &Grid, u: &[f64]) -> Vec<u32> {
+    let mut seen = Vec::new();
+    for &x in u {
+        let k = grid.quantize(x);
+        if seen.last() != Some(&k) {
+            seen.push(k);
+        }
+    }
+    seen
+}
+
+/// Cells never switched on (i, j >= `top`): their column equals the offset's, so they
+/// are fixed to 0.
+pub(super) fn never_on(grid: &Grid, top: usize) -> Vec<bool> {
+    let n_h = grid.n_h();
+    let mut zero = vec![false; grid.n_q()];
+    for i in 0..n_h {
+        for j in i.max(top)..n_h {
+            zero[cell_index(n_h, i, j)] = true;
+        }
+    }
+    zero
+}
+
+/// The paper's pitfalls (§3.3) met by an input of range `(u_min, u_max)` with
+/// `reversals` reversals, for a model of n_h levels on `(lo, hi)`, as sentences.
+pub(super) fn pitfalls(reversals: usize, n_h: usize, (u_min, u_max): (f64, f64), (lo, hi): (f64, f64)) -> Vec<String> {
+    let mut warnings = Vec::new();
+    if reversals < n_h {
+        warnings.push(format!(
+            "only {reversals} input reversals for n_h = {n_h}: fewer than n_h, so not every relay is switched on and off (Stakvik et al. 2015, §3.2); use more reversals or a smaller n_h"
+        ));
+    }
+    if u_max < hi || u_min > lo {
+        warnings.push(format!(
+            "the input range [{u_min:.4}, {u_max:.4}] does not exceed the model range [{lo:.4}, {hi:.4}]: border cells are not excited and absorb the offset (Stakvik et al. 2015, §3.3, Fig. 7a)"
+        ));
+    }
+    let span = hi - lo;
+    if u_max - hi > 0.1 * span || lo - u_min > 0.1 * span {
+        warnings.push(format!(
+            "the input range [{u_min:.4}, {u_max:.4}] extends far beyond the model range [{lo:.4}, {hi:.4}]: the end cells absorb everything outside it (Stakvik et al. 2015, §3.3, Fig. 7c)"
+        ));
+    }
+    warnings
+}
+
 /// Identify a model from input `u` and measured output `y`.
 pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, FitReport)> {
     check_signal("u", u)?;
@@ -292,26 +341,15 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
     let rows = build_rows(&grid, u, y, opts.interpolated);
     let time_rows_s = t_rows.elapsed().as_secs_f64();
     // The levels the relays saw, repeats dropped (the stepwise rows record them).
-    let mut seen = Vec::new();
+    let seen;
     let levels: &[u32] = if opts.interpolated {
-        for &x in u {
-            let k = grid.quantize(x);
-            if seen.last() != Some(&k) {
-                seen.push(k);
-            }
-        }
+        seen = seen_levels(&grid, u);
         &seen
     } else {
         &rows.levels
     };
     let (reversals, never, once) = excitation(levels, n_h);
-    // Cells never switched on: their column equals the offset's, so they are fixed to 0.
-    let mut zero = vec![false; grid.n_q()];
-    for i in 0..n_h {
-        for j in i.max(top)..n_h {
-            zero[cell_index(n_h, i, j)] = true;
-        }
-    }
+    let zero = never_on(&grid, top);
 
     // Mean and variance of y: from the stepwise rows (counts, means and within-row
     // scatter hold them exactly) rather than two more passes over the samples.
@@ -381,23 +419,7 @@ pub fn fit(u: &[f64], y: &[f64], opts: &FitOptions) -> Result<(PreisachModel, Fi
         model
     };
 
-    let mut warnings = Vec::new();
-    if reversals < n_h {
-        warnings.push(format!(
-            "only {reversals} input reversals for n_h = {n_h}: fewer than n_h, so not every relay is switched on and off (Stakvik et al. 2015, §3.2); use more reversals or a smaller n_h"
-        ));
-    }
-    if u_max < hi || u_min > lo {
-        warnings.push(format!(
-            "the input range [{u_min:.4}, {u_max:.4}] does not exceed the model range [{lo:.4}, {hi:.4}]: border cells are not excited and absorb the offset (Stakvik et al. 2015, §3.3, Fig. 7a)"
-        ));
-    }
-    let span = hi - lo;
-    if u_max - hi > 0.1 * span || lo - u_min > 0.1 * span {
-        warnings.push(format!(
-            "the input range [{u_min:.4}, {u_max:.4}] extends far beyond the model range [{lo:.4}, {hi:.4}]: the end cells absorb everything outside it (Stakvik et al. 2015, §3.3, Fig. 7c)"
-        ));
-    }
+    let warnings = pitfalls(reversals, n_h, (u_min, u_max), (lo, hi));
     let report = FitReport {
         rmse: (sse / u.len() as f64).sqrt(),
         n_samples: u.len(),

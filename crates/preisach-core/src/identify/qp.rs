@@ -238,12 +238,10 @@ pub(super) fn everett_objective(pb: &Problem) -> (Vec<(u64, f64)>, Vec<f64>) {
     let rows = pb.rows;
     let n_h = rows.n_h;
     let n_q = rows.n_vars();
-    let n = n_q + 1;
     let n_total = rows.n_samples as f64;
     // One triplet per pair of entries in a row (the offset included).
     let pairs: usize = rows.indptr.windows(2).map(|w| (w[1] - w[0] + 1) * (w[1] - w[0] + 2) / 2).sum();
     let mut trip = Vec::with_capacity(pairs);
-    let mut q = vec![0.0; n];
     let mut ent: Vec<(usize, f64)> = Vec::new();
     for r in 0..rows.n_rows() {
         let (idx, val) = rows.row(r);
@@ -251,9 +249,7 @@ pub(super) fn everett_objective(pb: &Problem) -> (Vec<(u64, f64)>, Vec<f64>) {
         ent.extend(idx.iter().map(|&i| i as usize).zip(val.iter().copied()));
         ent.push((n_q, rows.offset_coef[r]));
         let cw = 2.0 * rows.weight[r] / n_total;
-        let yt = (rows.target[r] - pb.mu * rows.offset_coef[r]) / pb.scale;
         for (k, &(i, vi)) in ent.iter().enumerate() {
-            q[i] -= cw * yt * vi;
             for &(j, vj) in &ent[k..] {
                 trip.push((key(i, j), cw * vi * vj));
             }
@@ -279,18 +275,33 @@ pub(super) fn everett_objective(pb: &Problem) -> (Vec<(u64, f64)>, Vec<f64>) {
             }
         }
     }
-    (trip, q)
+    (trip, linear_term(pb))
+}
+
+/// The linear term `q` of the objective in Everett coordinates (see [`everett_objective`]):
+/// the only part that depends on the targets.
+pub(super) fn linear_term(pb: &Problem) -> Vec<f64> {
+    let rows = pb.rows;
+    let n_q = rows.n_vars();
+    let n_total = rows.n_samples as f64;
+    let mut q = vec![0.0; n_q + 1];
+    for r in 0..rows.n_rows() {
+        let (idx, val) = rows.row(r);
+        let cw = 2.0 * rows.weight[r] / n_total;
+        let yt = (rows.target[r] - pb.mu * rows.offset_coef[r]) / pb.scale;
+        for (&i, &v) in idx.iter().zip(val) {
+            q[i as usize] -= cw * yt * v;
+        }
+        q[n_q] -= cw * yt * rows.offset_coef[r];
+    }
+    q
 }
 
 /// The structured solver: Everett coordinates, sparse objective, masses >= 0 as
 /// second differences.
 pub fn solve_everett(pb: &Problem) -> Result<Solution> {
-    let n_h = pb.rows.n_h;
-    let n_q = pb.rows.n_vars();
-    let n = n_q + 1;
+    let n = pb.rows.n_vars() + 1;
     let (trip, q) = everett_objective(pb);
-    let mut d1 = Vec::new();
-    let cell_ij = cell_coords(n_h);
     // Stepwise rows are polished by the active-set method (below), and one assembly then
     // serves both methods: the Hessian is the KKT matrix's first n columns.
     let (p, kkt) = if pb.rows.interpolated {
@@ -299,6 +310,18 @@ pub fn solve_everett(pb: &Problem) -> Result<Solution> {
         let kkt = Kkt::build(pb, trip)?;
         (kkt.hessian(), Some(kkt))
     };
+    solve_everett_with(pb, &p, &q, kkt)
+}
+
+/// [`solve_everett`] from the objective's Hessian `p` (upper triangle) and linear term
+/// `q`; `kkt` (the KKT matrix of `p`, all constraints inactive), when given, polishes by
+/// the active-set method.
+pub(super) fn solve_everett_with(pb: &Problem, p: &CscMatrix<f64>, q: &[f64], kkt: Option<Kkt>) -> Result<Solution> {
+    let n_h = pb.rows.n_h;
+    let n_q = pb.rows.n_vars();
+    let n = n_q + 1;
+    let mut d1 = Vec::new();
+    let cell_ij = cell_coords(n_h);
     // Constraints: fixed cells first (zero cone), then the rest (non-negative cone);
     // A x + s = 0 with A = −D, so s = D x = the masses.
     let mut order: Vec<usize> = (0..n_q).filter(|&c| pb.zero[c]).collect();
@@ -312,7 +335,7 @@ pub fn solve_everett(pb: &Problem) -> Result<Solution> {
             at.push((r, k, -v));
         }
     }
-    let first = ipm(&p, &q, &at, n, n_zero, n_q)?;
+    let first = ipm(p, q, &at, n, n_zero, n_q)?;
     // Polish: the cells whose slack is below the multiplier are the active-set method's
     // starting guess; from there it usually needs one or two factorizations to the exact
     // optimum (the clarabel polish below is the fallback).
@@ -322,12 +345,12 @@ pub fn solve_everett(pb: &Problem) -> Result<Solution> {
     }
     // (Not for interpolated rows: there it cycles; the clarabel polish is cheaper.)
     if let Some(kkt) = kkt {
-        if let Some(mut sol) = solve_kkt(pb, kkt, &q, Some(guess), POLISH_STEPS)? {
+        if let Some(mut sol) = solve_kkt(pb, kkt, q, Some(guess), POLISH_STEPS)? {
             sol.iterations += first.3;
             return Ok(sol);
         }
     }
-    let (x, iterations) = polish(&p, &q, &at, n, n_zero, n_q, first)?;
+    let (x, iterations) = polish(p, q, &at, n, n_zero, n_q, first)?;
     let mut masses = vec![0.0; n_q];
     for (c, m) in masses.iter_mut().enumerate() {
         if pb.zero[c] {
