@@ -19,7 +19,6 @@ reported as a detected delay only when it is longer than the sampling can explai
 """
 from __future__ import annotations
 
-import copy
 import math
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -232,7 +231,6 @@ class Fitter:
         self._lock = threading.Lock()
         self._memo: dict[tuple[Any, ...], tuple[float, list[float]]] = {}
         self._columns: dict[tuple[Any, ...], Optional[NDArray[np.float64]]] = {}
-        self._states: dict[tuple[Any, ...], FitState] = {}
         self._others: dict[int, Fitter] = {}
         self.evaluations = 0
         self._u = np.ascontiguousarray(rec.u, dtype=np.float64)
@@ -398,18 +396,16 @@ class Fitter:
     def state(self, eff: Effects, n_h: Optional[int] = None) -> FitState:
         """The chain with masses >= 0 (exact NNLS projection; the masses the record does
         not identify zero, ``preisach.diagnose.identified``) and its linear coefficients
-        refitted with them; memoized like ``J`` (the searches come back to a chain: the
-        candidate accepted, a held-out choice's winner), a copy returned."""
+        refitted with them."""
         if n_h is not None and n_h != self.n_h:
             return self._other(n_h).state(eff)
-        k = (self.rest, _key(eff))
-        with self._lock:
-            st = self._states.get(k)
-        if st is None:
-            st = self._project(eff)
-            with self._lock:
-                self._states[k] = st
-        return FitState(st.model, copy.deepcopy(st.effects), st.train_rmse)
+        pb = self._problem(eff)
+        res = self._solve(pb, nnls=True)
+        model = identified(PreisachModel._wrap(res["model"], "interpolated"), self._u)
+        e = self._linear(eff, res["extra_nnls"])
+        st = FitState(model, e)
+        st.train_rmse = rmse(self.predict(st) - self.y)
+        return st
 
     def _other(self, n_h: int) -> Fitter:
         """The fitter of the same record with ``n_h`` levels (kept: its sessions are the
@@ -421,15 +417,6 @@ class Fitter:
                                                self.ranges)
         f.rest = self.rest
         return f
-
-    def _project(self, eff: Effects) -> FitState:
-        pb = self._problem(eff)
-        res = self._solve(pb, nnls=True)
-        model = identified(PreisachModel._wrap(res["model"], "interpolated"), self._u)
-        e = self._linear(eff, res["extra_nnls"])
-        st = FitState(model, e)
-        st.train_rmse = rmse(self.predict(st) - self.y)
-        return st
 
     # -- one-dimensional searches on J ----------------------------------------------
     def line(self, eff: Effects, name: str, key: str, scale: float = 1.0, refine: int = 2) -> tuple[Effects, float]:

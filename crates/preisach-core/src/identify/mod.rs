@@ -9,6 +9,8 @@ mod order;
 pub mod projection;
 pub mod qp;
 pub mod rows;
+#[cfg(test)]
+mod testing;
 
 use crate::error::{check_scalar, check_signal, PreisachError, Result};
 use crate::grid::{cell_index, Grid};

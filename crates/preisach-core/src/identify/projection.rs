@@ -139,43 +139,8 @@ fn row_dot(rows: &Rows, r: usize, x: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::identify::testing::{input, signed, Rng};
     use crate::identify::{fit, FitOptions, Solver};
-
-    /// xorshift, uniform in [0, 1).
-    fn uniform(s: &mut u64) -> f64 {
-        *s ^= *s << 13;
-        *s ^= *s >> 7;
-        *s ^= *s << 17;
-        (*s >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    /// A random walk with jumps, beyond the range (0, 1) on both sides.
-    fn walk(s: &mut u64, n: usize) -> Vec<f64> {
-        let mut x = 0.5;
-        (0..n)
-            .map(|_| {
-                x += if uniform(s) < 0.01 { 1.2 * uniform(s) - 0.6 } else { 0.02 * uniform(s) - 0.01 };
-                x = x.clamp(-0.1, 1.1);
-                x
-            })
-            .collect()
-    }
-
-    /// Signed masses (a model minus another: about half the cells negative): their
-    /// Everett values and offset, and their output on `u` (the models' own staircases).
-    fn signed(s: &mut u64, grid: &Grid, u: &[f64]) -> (Vec<f64>, Vec<f64>) {
-        let mut model = |scale: f64, offset: f64| {
-            let m: Vec<f64> = (0..grid.n_q()).map(|_| scale * uniform(s)).collect();
-            PreisachModel::new(grid.clone(), m, offset).unwrap()
-        };
-        let (pos, neg) = (model(1.0, 0.3), model(1.0, 0.0));
-        let mut x: Vec<f64> = pos.everett_values().iter().zip(neg.everett_values()).map(|(a, b)| a - b).collect();
-        x.push(pos.offset());
-        let (mut hp, mut hn) = (vec![0.0; u.len()], vec![0.0; u.len()]);
-        pos.run_interpolated(&mut pos.interp_memory(), u, &mut hp);
-        neg.run_interpolated(&mut neg.interp_memory(), u, &mut hn);
-        (x, hp.iter().zip(&hn).map(|(a, b)| a - b).collect())
-    }
 
     fn output(m: &PreisachModel, u: &[f64]) -> Vec<f64> {
         let mut h = vec![0.0; u.len()];
@@ -187,9 +152,9 @@ mod tests {
     fn projection_equals_the_structured_fit_of_the_same_output() {
         // Several targets in turn on one input (signed masses, so the bounds are
         // active): the kept problem gives the structured fit's optimum output and RMSE.
-        let mut s = 0x9E37_79B9_7F4A_7C15u64;
+        let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
         for n_h in [4usize, 7, 12] {
-            let u = walk(&mut s, 6000);
+            let u = input(&mut rng, 6000);
             let grid = Grid::new(0.0, 1.0, n_h).unwrap();
             let mut proj = Projection::new(&grid, &u).unwrap();
             let opts = FitOptions {
@@ -201,7 +166,7 @@ mod tests {
                 diagonal_floor: 0.0,
             };
             for k in 0..3 {
-                let (x, h) = signed(&mut s, &grid, &u);
+                let (x, h) = signed(&mut rng, &grid, &u);
                 let (got, rep) = proj.project(&x, &h).unwrap();
                 let (want, wrep) = fit(&u, &h, &opts).unwrap();
                 let (a, b) = (output(&got, &u), output(&want, &u));
@@ -217,8 +182,8 @@ mod tests {
 
     #[test]
     fn bad_arguments_are_named() {
-        let mut s = 7u64;
-        let u = walk(&mut s, 500);
+        let mut rng = Rng(7);
+        let u = input(&mut rng, 500);
         let grid = Grid::new(0.0, 1.0, 4).unwrap();
         let mut proj = Projection::new(&grid, &u).unwrap();
         let err = proj.project(&[0.0; 3], &u).unwrap_err().to_string();
