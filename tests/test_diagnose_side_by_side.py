@@ -26,11 +26,10 @@ from preisach.diagnose.records import load_record
 from preisach.diagnose.search import Trials
 from preisach.sim import Stage
 
-POOL = ThreadPoolExecutor(2)
-
-
 def _pool_map(fn: Any, items: Any) -> list[Any]:
-    return list(POOL.map(fn, list(items)))
+    """``map`` on a pool of two threads (shut down on return: no thread outlives a test)."""
+    with ThreadPoolExecutor(2) as pool:
+        return list(pool.map(fn, list(items)))
 
 
 def _project_records(seed: int) -> list[Record]:
