@@ -5,7 +5,8 @@
 //! ζ = 0.02) and creep, noisy output; the fit on windows of 8 samples (25 000 of them).
 //! Timed: building the problem (`new`), a cold solve, a profile of five neighbouring
 //! chains warm-started one from the other (the mode's frequency stepped by 0.5 %, as a
-//! line search moves it), the masses' projection (`project`) of one solution, and the
+//! line search moves it), the masses' projection (`project`, the plain one polished;
+//! `project_tie`, the diagnosis's, with its smoothness term) of one solution, and the
 //! projections of the profile's five solutions in turn (`project_profile_5`).
 
 use std::hint::black_box;
@@ -14,6 +15,7 @@ use std::time::Duration;
 use criterion::{criterion_group, criterion_main, Criterion};
 use preisach_core::blocks::{CreepParams, Discretization, Filter, Lti, Mode, VibrationParams};
 use preisach_core::identify::filtered::{Behind, Terms};
+use preisach_core::identify::projection::TIE;
 
 #[path = "common.rs"]
 mod common;
@@ -84,6 +86,11 @@ fn behind(c: &mut Criterion) {
     });
     let sol = fit.solve(&z, &mut lti, &terms, tol, 300, false).unwrap();
     g.bench_function("project", |b| b.iter(|| black_box(fit.project(&sol, &z, &mut lti, &terms).unwrap().2)));
+    // The diagnosis's projection: with the smoothness term that makes it unique, the
+    // interior point not polished.
+    let mut tied = Behind::new(&u, N_H, range, STRIDE).unwrap();
+    tied.set_tie(TIE).unwrap();
+    g.bench_function("project_tie", |b| b.iter(|| black_box(tied.project(&sol, &z, &mut lti, &terms).unwrap().2)));
     // The projections of the profile's five solutions in turn (each one's neighbour the
     // last one projected, as a search asks for them).
     let sols: Vec<_> = along.iter_mut().map(|l| fit.solve(&z, l, &terms, tol, 300, false).unwrap()).collect();

@@ -1,7 +1,8 @@
 """Masses fitted behind linear dynamics (``_preisach.Behind``, ``_preisach.fit_behind``):
-against dense least squares on relay columns filtered by SciPy (the oracle), nested
-chains never fitting worse, the averaged-window fit, and the diagnoser's drift
-calibration."""
+against dense least squares on relay columns filtered by SciPy (the oracle), the masses'
+projection against SciPy's NNLS (plain, and with the smoothness term the diagnosis
+adds), nested chains never fitting worse, the averaged-window fit, and the diagnoser's
+drift calibration."""
 import numpy as np
 import pytest
 from lti_reference import apply_effects
@@ -165,20 +166,42 @@ def _independent(seed, n=6000):
     return _unit(rec["u"][:n]), rec["y"][:n]
 
 
+#: The smoothness weight that makes the projection's optimum unique (in the solver's
+#: scaled units), as the diagnosis's sessions take it.
+TIE = _preisach.PROJECTION_TIE
+
+
+def _neighbours(n_h):
+    """The smoothness term's rows: a difference of two neighbouring cells' masses each
+    (cells in ``np.triu_indices`` order)."""
+    cells = {c: k for k, c in enumerate(zip(*np.triu_indices(n_h)))}
+    rows = []
+    for (i, j), k in cells.items():
+        for nb in ((i + 1, j), (i, j + 1)):
+            if nb in cells:
+                r = np.zeros(len(cells))
+                r[k], r[cells[nb]] = 1.0, -1.0
+                rows.append(r)
+    return np.array(rows)
+
+
 @pytest.mark.parametrize("source", [_sim_stage, _rig, _independent])
 @pytest.mark.parametrize("seed", [3, 11])
 def test_kept_projection_is_the_nnls_optimum_on_simulated_records(source, seed):
     """Several projections in turn on one input (what the fit keeps is reused) from
-    records of both simulators: the output equals scipy.optimize.nnls's on the dense
-    relay columns (the optimum's output is unique where the masses are not), the masses
-    satisfy the optimality conditions, and the structured fit of the same output gives
-    the same output."""
+    records of both simulators: the output and the masses equal scipy.optimize.nnls's on
+    the dense relay columns with the smoothness term's rows appended (in original units
+    the objective is ||C w + c - h*||^2 + N TIE ||G w||^2, N samples), the masses satisfy
+    that problem's optimality conditions, and the structured fit of the same output with
+    the same smoothness weight gives the same model."""
     from scipy.optimize import nnls
     u, y = source(seed)
     rng = np.random.default_rng(seed)
-    b = _preisach.Behind(u, N_H, RANGE)
+    b = _preisach.Behind(u, N_H, RANGE, tie=TIE)
     plain = _dense(u, {})
-    cols = np.column_stack([plain[:, :-1], plain[:, -1], -plain[:, -1]])
+    G = _neighbours(N_H)
+    ridge = np.sqrt(u.size * TIE) * np.column_stack([G, np.zeros((G.shape[0], 2))])
+    cols = np.vstack([np.column_stack([plain[:, :-1], plain[:, -1], -plain[:, -1]]), ridge])
     iu = np.triu_indices(N_H)
     for _k in range(3):
         effects = {"lowpass": {"cutoff_hz": float(rng.uniform(200.0, 1500.0)), "order": int(rng.integers(1, 3))}}
@@ -187,21 +210,52 @@ def test_kept_projection_is_the_nnls_optimum_on_simulated_records(source, seed):
         res = b.solve(z, DT, _blocks(effects), tol=1e-13, max_iter=5000, warm=False, nnls=True)
         h_star = plain @ np.linalg.lstsq(A, z, rcond=None)[0]
         span = np.ptp(h_star)
-        want = cols @ nnls(cols, h_star, maxiter=50 * cols.shape[1])[0]
+        sol = nnls(cols, np.concatenate([h_star, np.zeros(G.shape[0])]), maxiter=50 * cols.shape[1])[0]
         model = PreisachModel._wrap(res["model"], "interpolated")
         got = model.predict(u)
-        assert np.max(np.abs(got - want)) < 1e-5 * span
-        # Optimality: with r the residual, the gradient plain' r is zero for the offset
-        # and every cell with mass, and >= 0 for the cells at zero.
         w = model.weights[iu]
+        assert np.max(np.abs(got - cols[:u.size] @ sol)) < 1e-6 * span
+        assert np.max(np.abs(w - sol[:-2])) < 1e-3 * np.max(sol[:-2])
+        # Optimality: the objective's gradient (residual and smoothness term) is zero
+        # for the offset and every cell with mass, and >= 0 for the cells at zero.
         g = plain.T @ (got - h_star)
+        g[:-1] += u.size * TIE * (G.T @ (G @ w))
         tol = 1e-6 * np.max(np.abs(plain.T @ h_star))
         assert np.all(w >= 0.0)
         assert abs(g[-1]) < tol
         assert np.all(g[:-1] > -tol)
-        assert np.all(np.abs(g[:-1][w > 1e-9 * w.max()]) < tol)
-        fitted, _ = _preisach.fit(u, h_star, N_H, RANGE, solver="structured", interpolated=True, diagonal_floor=0.0)
-        assert np.max(np.abs(PreisachModel._wrap(fitted, "interpolated").predict(u) - got)) < 1e-5 * span
+        assert np.all(np.abs(g[:-1][w > 1e-7 * w.max()]) < tol)
+        fitted, _ = _preisach.fit(u, h_star, N_H, RANGE, reg=TIE, solver="structured", interpolated=True,
+                                  diagonal_floor=0.0)
+        assert np.max(np.abs(PreisachModel._wrap(fitted, "interpolated").predict(u) - got)) < 1e-6 * span
+
+
+def test_sessions_sharing_a_projection_give_what_each_alone_gives():
+    """Sessions on one input at other strides share the masses' projection (the first
+    to project builds it): each projection equals that of a session with its own, bit
+    for bit, whichever session built it; another input, grid or smoothness weight is
+    refused, named."""
+    t, u = _input(seed=3)
+    y = np.sin(7 * u) + 0.2 * u
+    eff = {"lowpass": {"cutoff_hz": 600.0, "order": 2}}
+    a = _preisach.Behind(u, N_H, RANGE, 1, tie=TIE)
+    b = _preisach.Behind(u, N_H, RANGE, 4, tie=TIE)
+    b.share(a)
+    yb = np.ascontiguousarray(y[: u.size // 4 * 4].reshape(-1, 4).mean(axis=1))
+    got_b = b.solve(yb, 4 * DT, _blocks(eff), tol=1e-10, warm=False, nnls=True)  # b builds it
+    got_a = a.solve(y, DT, _blocks(eff), tol=1e-10, warm=False, nnls=True)
+    for sess, z, dt, got in ((a, y, DT, got_a), (b, yb, 4 * DT, got_b)):
+        alone = _preisach.Behind(u, N_H, RANGE, 1 if sess is a else 4, tie=TIE)
+        want = alone.solve(z, dt, _blocks(eff), tol=1e-10, warm=False, nnls=True)
+        np.testing.assert_array_equal(got["model"].weights(), want["model"].weights())
+        assert got["rmse_nnls"] == want["rmse_nnls"]
+    for other in (_preisach.Behind(u[::-1].copy(), N_H, RANGE, tie=TIE),  # another input
+                  _preisach.Behind(u, N_H + 1, RANGE, tie=TIE),  # another grid
+                  _preisach.Behind(u, N_H, RANGE)):  # the plain projection
+        with pytest.raises(ValueError, match="share: another input, grid or smoothness weight"):
+            other.share(a)
+    with pytest.raises(ValueError, match="tie: must be >= 0"):
+        _preisach.Behind(u, N_H, RANGE, tie=-1.0)
 
 
 def test_bad_arguments_are_named():

@@ -200,8 +200,11 @@ def test_ctrl_c_in_the_candidate_fits_starts_nothing_new(tmp_path, monkeypatch):
         """A fit session that counts its solves, and sends SIGINT to the main thread at
         the 40th solve of the candidate round (a Ctrl-C)."""
 
-        def __init__(self, *args: object) -> None:
-            self.session = real(*args)
+        def __init__(self, *args: object, **kw: object) -> None:
+            self.session = real(*args, **kw)
+
+        def share(self, other: "Counting") -> None:
+            self.session.share(other.session)
 
         def solve(self, *args: object, **kw: object) -> object:
             with lock:

@@ -7,10 +7,11 @@ from typing_extensions import final
 
 __version__: str
 DEFAULT_DIAGONAL_FLOOR: float
+PROJECTION_TIE: float
 __all__ = [
-    "__version__", "DEFAULT_DIAGONAL_FLOOR", "Model", "Stream", "fit", "fit_behind", "Behind", "regression_rows",
-    "nnls", "invert", "saturation", "InverseStream", "Chain", "run_loop", "run_loop_chain", "ChainInverseStream",
-    "sample_period",
+    "__version__", "DEFAULT_DIAGONAL_FLOOR", "PROJECTION_TIE", "Model", "Stream", "fit", "fit_behind", "Behind",
+    "regression_rows", "nnls", "invert", "saturation", "InverseStream", "Chain", "run_loop", "run_loop_chain",
+    "ChainInverseStream", "sample_period",
 ]
 
 # --- core (model, stream, identification) ---
@@ -63,9 +64,17 @@ def fit_behind(
 
 @final
 class Behind:
-    def __new__(cls, u: NDArray[np.float64], n_h: int, u_range: tuple[float, float], stride: int = 1) -> Behind: ...
+    def __new__(
+        cls,
+        u: NDArray[np.float64],
+        n_h: int,
+        u_range: tuple[float, float],
+        stride: int = 1,
+        tie: float = 0.0,
+    ) -> Behind: ...
     @property
     def n_out(self) -> int: ...
+    def share(self, other: Behind) -> None: ...
     def solve(
         self,
         z: NDArray[np.float64],

@@ -8,7 +8,9 @@ use std::sync::Mutex;
 
 use numpy::{PyReadonlyArray2, PyUntypedArrayMethods};
 use preisach_core::blocks::{Discretization, Filter};
-use preisach_core::identify::filtered::{fit_behind as core_fit_behind, Behind as CoreBehind, BehindOptions, Terms};
+use preisach_core::identify::filtered::{
+    fit_behind as core_fit_behind, Behind as CoreBehind, BehindOptions, ProjectionHandle, Terms,
+};
 use preisach_core::identify::nnls::nnls as core_nnls;
 use preisach_core::identify::{build_rows, fit as core_fit, FitOptions, Solver, DEFAULT_DIAGONAL_FLOOR};
 use preisach_core::Grid;
@@ -184,6 +186,9 @@ fn nnls<'py>(
 #[pyclass(frozen, module = "preisach._preisach")]
 pub struct Behind {
     inner: Mutex<CoreBehind>,
+    /// What a session sharing this one's projection takes (read without the lock: the
+    /// session may be solving).
+    handle: ProjectionHandle,
 }
 
 fn rows_of<'a>(name: &str, a: &'a Option<PyReadonlyArray2<'_, f64>>) -> PyResult<Vec<&'a [f64]>> {
@@ -202,21 +207,35 @@ fn rows_of<'a>(name: &str, a: &'a Option<PyReadonlyArray2<'_, f64>>) -> PyResult
 #[pymethods]
 impl Behind {
     #[new]
-    #[pyo3(signature = (u, n_h, u_range, stride=1))]
+    #[pyo3(signature = (u, n_h, u_range, stride=1, tie=0.0))]
     fn new(
         py: Python<'_>,
         u: PyReadonlyArray1<'_, f64>,
         n_h: i64,
         u_range: (f64, f64),
         stride: usize,
+        tie: f64,
     ) -> PyResult<Self> {
         guard(|| {
             if n_h < 1 {
                 return Err(to_py(preisach_core::PreisachError::invalid("n_h", format!("must be >= 1, got {n_h}"))));
             }
             let u = slice("u", &u)?;
-            let b = py.detach(|| CoreBehind::new(u, n_h as usize, u_range, stride)).map_err(to_py)?;
-            Ok(Behind { inner: Mutex::new(b) })
+            let mut b = py.detach(|| CoreBehind::new(u, n_h as usize, u_range, stride)).map_err(to_py)?;
+            b.set_tie(tie).map_err(to_py)?;
+            let handle = b.projection_handle();
+            Ok(Behind { inner: Mutex::new(b), handle })
+        })
+    }
+
+    /// Share ``other``'s masses' projection (the same input, range, ``n_h`` and ``tie``;
+    /// any stride): built once, by the first session that projects. Call it before this
+    /// session projects (it waits for a solve running on this session, never on
+    /// ``other``'s).
+    fn share(&self, py: Python<'_>, other: PyRef<'_, Behind>) -> PyResult<()> {
+        guard(|| {
+            let handle = other.handle.clone();
+            py.detach(|| self.inner.lock().unwrap_or_else(|e| e.into_inner()).share_projection(&handle)).map_err(to_py)
         })
     }
 
@@ -289,6 +308,7 @@ impl Behind {
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("DEFAULT_DIAGONAL_FLOOR", DEFAULT_DIAGONAL_FLOOR)?;
+    m.add("PROJECTION_TIE", preisach_core::identify::projection::TIE)?;
     m.add_class::<Behind>()?;
     m.add_function(wrap_pyfunction!(fit, m)?)?;
     m.add_function(wrap_pyfunction!(fit_behind, m)?)?;

@@ -8,7 +8,8 @@ searched on the *profiled* error ``J(θ) = min over masses of the training MSE``
 masses absorb part of any unmodelled effect (a delay widens the loops, creep scales them),
 and only with the masses refitted at every trial value does the search land on the truth.
 The coefficients that enter linearly are solved with the masses (drift offset slope, rate
-gain). The masses >= 0 (the exact NNLS fit) are computed only for chains that are scored.
+gain). The masses >= 0 (the NNLS fit, made unique by a small smoothness term) are computed
+only for chains that are scored.
 
 Effects that trade off against each other (a delay and a low-pass share the low-frequency
 lag; creep and drift both make slow trends; a mode's ringing phase needs the timing) are
@@ -215,13 +216,20 @@ class Fitter:
     ``Behind``: averaging commutes with the dynamics and keeps the timing of steps).
     ``tol``: the conjugate gradients stop when two steps in a row lower the training error
     by less than this fraction of it (3e-5: along a mode's frequency the profiled error
-    rises the same as at 1e-5 to within 2 %, at 13 % fewer iterations)."""
+    rises the same as at 1e-5 to within 2 %, at 13 % fewer iterations). ``shared``: a
+    fitter of the same record and range (another stride): the masses' projections of
+    both are built once per grid."""
 
     def __init__(self, rec: Record, n_h: int, u_range: tuple[float, float], stride: int = 1,
-                 tol: float = 3e-5, trials: Optional[Trials] = None, ranges: Optional[Ranges] = None) -> None:
+                 tol: float = 3e-5, trials: Optional[Trials] = None, ranges: Optional[Ranges] = None,
+                 shared: Optional[Fitter] = None) -> None:
         from preisach import _preisach
 
         self._behind = _preisach.Behind
+        self._tie = _preisach.PROJECTION_TIE
+        #: A session per grid of the fitters sharing this record and range: each new
+        #: session shares its masses' projection, built once for them all.
+        self._projections: dict[int, Any] = shared._projections if shared is not None else {}
         self.rec = rec
         self.stride = max(1, int(stride))
         self.n_h = n_h
@@ -303,9 +311,10 @@ class Fitter:
                 if orphan is not None:
                     sess = self._sessions[me] = self._sessions.pop(orphan)
         if sess is None:
-            sess = self._behind(self._u, self.n_h, self.u_range, self.stride)
+            sess = self._behind(self._u, self.n_h, self.u_range, self.stride, tie=self._tie)
             with self._lock:
                 self._sessions[me] = sess
+                sess.share(self._projections.setdefault(self.n_h, sess))
         return sess
 
     def _solve(self, pb: dict[str, Any], nnls: bool = False) -> dict[str, Any]:
@@ -394,9 +403,10 @@ class Fitter:
         return self._linear(eff, self._memo[_key(eff)][1])
 
     def state(self, eff: Effects, n_h: Optional[int] = None) -> FitState:
-        """The chain with masses >= 0 (exact NNLS projection; the masses the record does
-        not identify zero, ``preisach.diagnose.identified``) and its linear coefficients
-        refitted with them."""
+        """The chain with masses >= 0 (the NNLS projection, with the small smoothness term
+        that makes its masses unique, ``_preisach.PROJECTION_TIE``; the masses the record
+        does not identify zero, ``preisach.diagnose.identified``) and its linear
+        coefficients refitted with them."""
         if n_h is not None and n_h != self.n_h:
             return self._other(n_h).state(eff)
         pb = self._problem(eff)
@@ -414,7 +424,7 @@ class Fitter:
             f = self._others.get(n_h)
             if f is None:
                 f = self._others[n_h] = Fitter(self.rec, n_h, self.u_range, self.stride, self.tol, self.trials,
-                                               self.ranges)
+                                               self.ranges, shared=self)
         f.rest = self.rest
         return f
 

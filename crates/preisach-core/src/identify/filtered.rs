@@ -26,13 +26,15 @@
 //!    matrix `Bᵀ Ω B` (sparse, factored once): `L ≈ 1` where the hysteresis output lives,
 //!    so only the few directions that see the dynamics' resonance or roll-off cost
 //!    iterations (20–60 on the diagnoser's records);
-//! 2. the masses >= 0: the exact NNLS fit of the model to that optimum's output `h*`
-//!    (the projection onto non-negative masses in the unfiltered metric).
+//! 2. the masses >= 0: the NNLS fit of the model to that optimum's output `h*` (the
+//!    projection onto non-negative masses in the unfiltered metric; see `projection`).
+
+use std::sync::{Arc, Mutex};
 
 use clarabel::algebra::CscMatrix;
 use clarabel::qdldl::{QDLDLFactorisation, QDLDLSettingsBuilder};
 
-use super::projection::Projection;
+use super::projection::{check_tie, Projection};
 use super::qp::{csc_upper, key};
 use super::rows::{combine, emit_row};
 use super::FitReport;
@@ -559,15 +561,25 @@ impl Precond {
 /// through the dynamics with the hysteresis output (a rate branch), `post` columns are
 /// added after them (drift offsets).
 pub struct Behind {
-    grid: Grid,
-    u: Vec<f64>,
     rows: SampleRows,
     pre: Precond,
     /// Last unconstrained solution (Everett values, offset, extra coefficients), for warm
     /// starts (used when the number of extra terms matches).
     last: Option<Vec<f64>>,
-    /// The masses' projection on this input (built by the first [`Behind::project`]).
-    projection: Option<Projection>,
+    /// The input, its grid and the masses' projection on it (see [`ProjectionHandle`]).
+    input: ProjectionHandle,
+}
+
+/// What the sessions on one input share: the input, the grid, the projection's
+/// smoothness weight ([`Projection::new`]) and the projection itself, built once, by the
+/// first [`Behind::project`] of any of them (the others wait for it rather than build
+/// their own), then only read.
+#[derive(Clone)]
+pub struct ProjectionHandle {
+    grid: Grid,
+    u: Arc<Vec<f64>>,
+    tie: f64,
+    slot: Arc<Mutex<Option<Arc<Projection>>>>,
 }
 
 /// Unconstrained optimum of [`Behind::solve`].
@@ -614,7 +626,51 @@ impl Behind {
         let mut trip = rows.gram();
         trip.extend((0..dim).map(|i| (key(i, i), 0.0)));
         let pre = Precond::new(dim, trip)?;
-        Ok(Behind { grid, u: u.to_vec(), rows, pre, last: None, projection: None })
+        let input = ProjectionHandle { grid, u: Arc::new(u.to_vec()), tie: 0.0, slot: Arc::default() };
+        Ok(Behind { rows, pre, last: None, input })
+    }
+
+    /// The smoothness weight of the masses' projection ([`Projection::new`]; 0 by
+    /// default: the plain projection, polished).
+    pub fn set_tie(&mut self, tie: f64) -> Result<()> {
+        check_tie(tie)?;
+        if tie != self.input.tie {
+            self.input.tie = tie;
+            self.input.slot = Arc::default();
+        }
+        Ok(())
+    }
+
+    /// What another session needs to share this one's projection
+    /// ([`Behind::share_projection`]).
+    pub fn projection_handle(&self) -> ProjectionHandle {
+        self.input.clone()
+    }
+
+    /// Share the projection of the session `other` came from (one input, grid and
+    /// smoothness weight: its rows and Hessian are built once for every session on the
+    /// input, whatever their stride).
+    pub fn share_projection(&mut self, other: &ProjectionHandle) -> Result<()> {
+        let me = &self.input;
+        if me.grid != other.grid || me.tie != other.tie || !(Arc::ptr_eq(&me.u, &other.u) || me.u == other.u) {
+            return Err(PreisachError::invalid(
+                "share",
+                "another input, grid or smoothness weight: its projection is not this session's",
+            ));
+        }
+        self.input = other.clone();
+        Ok(())
+    }
+
+    /// The shared projection, built here if no session has built it yet.
+    fn projection(&self) -> Result<Arc<Projection>> {
+        let mut slot = self.input.slot.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(p) = slot.as_ref() {
+            return Ok(Arc::clone(p));
+        }
+        let p = Arc::new(Projection::new(&self.input.grid, &self.input.u, self.input.tie)?);
+        *slot = Some(Arc::clone(&p));
+        Ok(p)
     }
 
     /// Input samples per output sample (the averaging window).
@@ -679,7 +735,7 @@ impl Behind {
         self.check_terms(z, terms)?;
         check_scalar("tol", tol)?;
         let n = self.rows.n_out();
-        let nh = self.grid.n_q() + 1;
+        let nh = self.input.grid.n_q() + 1;
         let (kp, kq) = (terms.pre.len(), terms.post.len());
         let dim = nh + kp + kq;
         let omega = terms.omega;
@@ -856,8 +912,9 @@ impl Behind {
         })
     }
 
-    /// Masses >= 0 for a solution: the exact NNLS fit of the model to the optimum's
-    /// hysteresis output (the projection in the unfiltered metric), then the extra
+    /// Masses >= 0 for a solution: the NNLS fit of the model to the optimum's hysteresis
+    /// output (the projection in the unfiltered metric; exact, or with the session's
+    /// smoothness term, [`Behind::set_tie`]), then the extra
     /// columns' coefficients refitted by least squares with those masses. Returns the
     /// model, the coefficients and the weighted RMSE of the chain.
     pub fn project(
@@ -868,15 +925,11 @@ impl Behind {
         terms: &Terms,
     ) -> Result<(PreisachModel, Vec<f64>, f64, FitReport)> {
         self.check_terms(z, terms)?;
-        let nf = self.u.len();
+        let nf = self.input.u.len();
         let n = self.rows.n_out();
         let mut h_star = vec![0.0; nf];
         self.rows.forward_fine(&sol.x, &mut h_star);
-        let projection = match &mut self.projection {
-            Some(p) => p,
-            None => self.projection.insert(Projection::new(&self.grid, &self.u)?),
-        };
-        let (model, rep) = projection.project(&sol.x, &h_star)?;
+        let (model, rep) = self.projection()?.project(&sol.x, &h_star)?;
         // The model's output on the output samples, through the dynamics.
         let mut x = model.everett_values();
         x.push(model.offset());

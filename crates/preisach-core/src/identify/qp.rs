@@ -281,14 +281,20 @@ pub(super) fn everett_objective(pb: &Problem) -> (Vec<(u64, f64)>, Vec<f64>) {
 /// The linear term `q` of the objective in Everett coordinates (see [`everett_objective`]):
 /// the only part that depends on the targets.
 pub(super) fn linear_term(pb: &Problem) -> Vec<f64> {
+    linear_term_of(pb, &pb.rows.target)
+}
+
+/// [`linear_term`] with the rows' targets given apart (the rows shared by several
+/// problems).
+pub(super) fn linear_term_of(pb: &Problem, target: &[f64]) -> Vec<f64> {
     let rows = pb.rows;
     let n_q = rows.n_vars();
     let n_total = rows.n_samples as f64;
     let mut q = vec![0.0; n_q + 1];
-    for r in 0..rows.n_rows() {
+    for (r, &t) in target.iter().enumerate().take(rows.n_rows()) {
         let (idx, val) = rows.row(r);
         let cw = 2.0 * rows.weight[r] / n_total;
-        let yt = (rows.target[r] - pb.mu * rows.offset_coef[r]) / pb.scale;
+        let yt = (t - pb.mu * rows.offset_coef[r]) / pb.scale;
         for (&i, &v) in idx.iter().zip(val) {
             q[i as usize] -= cw * yt * v;
         }
@@ -310,13 +316,22 @@ pub fn solve_everett(pb: &Problem) -> Result<Solution> {
         let kkt = Kkt::build(pb, trip)?;
         (kkt.hessian(), Some(kkt))
     };
-    solve_everett_with(pb, &p, &q, kkt)
+    solve_everett_with(pb, &p, &q, kkt, true)
 }
 
 /// [`solve_everett`] from the objective's Hessian `p` (upper triangle) and linear term
 /// `q`; `kkt` (the KKT matrix of `p`, all constraints inactive), when given, polishes by
-/// the active-set method.
-pub(super) fn solve_everett_with(pb: &Problem, p: &CscMatrix<f64>, q: &[f64], kkt: Option<Kkt>) -> Result<Solution> {
+/// the active-set method. Without `polish_ipm`, the interior point's solution is taken
+/// as it is, to its tolerances (a relative gap of 1e-11): for an objective with a unique
+/// optimum (`reg` > 0) the clarabel polish's equality-constrained re-solves cost several
+/// interior points and do not move it.
+pub(super) fn solve_everett_with(
+    pb: &Problem,
+    p: &CscMatrix<f64>,
+    q: &[f64],
+    kkt: Option<Kkt>,
+    polish_ipm: bool,
+) -> Result<Solution> {
     let n_h = pb.rows.n_h;
     let n_q = pb.rows.n_vars();
     let n = n_q + 1;
@@ -350,7 +365,7 @@ pub(super) fn solve_everett_with(pb: &Problem, p: &CscMatrix<f64>, q: &[f64], kk
             return Ok(sol);
         }
     }
-    let (x, iterations) = polish(p, q, &at, n, n_zero, n_q, first)?;
+    let (x, iterations) = if polish_ipm { polish(p, q, &at, n, n_zero, n_q, first)? } else { (first.0, first.3) };
     let mut masses = vec![0.0; n_q];
     for (c, m) in masses.iter_mut().enumerate() {
         if pb.zero[c] {
