@@ -180,7 +180,8 @@ impl Sampling {
 }
 
 /// One sampled pole: `z[n] = a z[n−1] + b0 x[n−1] + b1 x[n]`, output `Re(g z[n])`;
-/// `init` is the state at rest per unit input (`−1/p`).
+/// `init` is the state at rest per unit input (`−1/p`). `real`: every coefficient is
+/// real (a real pole), so the state stays real.
 #[derive(Debug, Clone, Copy)]
 struct Pole {
     a: C,
@@ -188,6 +189,7 @@ struct Pole {
     b1: C,
     g: C,
     init: C,
+    real: bool,
 }
 
 /// `(e^x − 1)/x` and `(e^x − 1 − x)/x²`, by their series where the closed forms cancel.
@@ -205,29 +207,86 @@ impl Pole {
         let g = if p.im != 0.0 { 2.0 * r } else { r };
         let init = -1.0 / p;
         let pt = p * dt;
-        match d {
+        let (a, b0, b1) = match d {
             Discretization::Zoh => {
                 let (phi1, _) = phi12(pt);
-                Pole { a: pt.exp(), b0: C::new(0.0, 0.0), b1: dt * phi1, g, init }
+                (pt.exp(), C::new(0.0, 0.0), dt * phi1)
             }
             Discretization::Foh => {
                 // Exact integrals of e^{p(T−τ)} against the hold's two ramps.
                 let (phi1, phi2) = phi12(pt);
                 let (i0, i1) = (dt * phi1, dt * phi2);
-                Pole { a: pt.exp(), b0: i0 - i1, b1: i1, g, init }
+                (pt.exp(), i0 - i1, i1)
             }
             Discretization::Bilinear { prewarp_hz } => {
                 let w = std::f64::consts::TAU * prewarp_hz;
                 let k = w / (0.5 * w * dt).tan();
                 let b = 1.0 / (k - p);
-                Pole { a: (k + p) * b, b0: b, b1: b, g, init }
+                ((k + p) * b, b, b)
             }
+        };
+        let real = [a, b0, b1, g, init].iter().all(|c| c.im == 0.0);
+        Pole { a, b0, b1, g, init, real }
+    }
+
+    /// Adds this pole's output over a record to `out`, from rest with `x[0]`; returns the
+    /// final state. The operations of [`Filter::advance`], in its order (bit for bit the
+    /// per-sample recursion); a real pole in real arithmetic (the imaginary parts it
+    /// skips are zeros, so the sums are the same).
+    fn run(&self, x: &[f64], out: &mut [f64]) -> C {
+        if self.real {
+            let (a, b0, b1, g) = (self.a.re, self.b0.re, self.b1.re, self.g.re);
+            let mut z = self.init.re * x[0];
+            out[0] += g * z;
+            for (o, w) in out[1..].iter_mut().zip(x.windows(2)) {
+                z = a * z + b0 * w[0] + b1 * w[1];
+                *o += g * z;
+            }
+            return C::new(z, 0.0);
         }
+        let mut z = self.init * x[0];
+        out[0] += (self.g * z).re;
+        for (o, w) in out[1..].iter_mut().zip(x.windows(2)) {
+            z = self.a * z + self.b0 * w[0] + self.b1 * w[1];
+            *o += (self.g * z).re;
+        }
+        z
+    }
+
+    /// Adds this pole's part of the adjoint over a record to `out` (backwards in time,
+    /// the operations of the per-sample adjoint in its order; see [`Filter::adjoint`]).
+    fn run_adjoint(&self, w: &[f64], out: &mut [f64]) {
+        let n = w.len();
+        if self.real {
+            let (a, b0, b1, g) = (self.a.re, self.b0.re, self.b1.re, self.g.re);
+            let mut gn = 0.0;
+            for m in (1..n).rev() {
+                let gm = g * w[m] + a * gn;
+                out[m] += b0 * gn + b1 * gm;
+                gn = gm;
+            }
+            let gm = g * w[0] + a * gn;
+            out[0] += b0 * gn + self.init.re * gm;
+            return;
+        }
+        let mut gn = C::new(0.0, 0.0);
+        for m in (1..n).rev() {
+            let gm = self.g * w[m] + self.a * gn;
+            let mut t = self.b0 * gn;
+            t += self.b1 * gm;
+            out[m] += t.re;
+            gn = gm;
+        }
+        let gm = self.g * w[0] + self.a * gn;
+        let mut t = self.b0 * gn;
+        t += self.init * gm;
+        out[0] += t.re;
     }
 }
 
 /// Sampled sections in series with their state: the per-sample recursion, the record
-/// pass from rest and its exact adjoint. Never allocates after construction.
+/// pass from rest and its exact adjoint. The per-sample recursion never allocates; the
+/// record passes keep one buffer of a record's length.
 #[derive(Debug, Clone)]
 pub struct Filter {
     poles: Vec<Pole>,
@@ -237,6 +296,8 @@ pub struct Filter {
     /// Per section: its previous input.
     prev: Vec<f64>,
     settled: bool,
+    /// A section's input over a record ([`Filter::apply`], [`Filter::adjoint`]).
+    buf: Vec<f64>,
 }
 
 impl Filter {
@@ -266,7 +327,7 @@ impl Filter {
             spans.push((start, poles.len(), s.direct));
         }
         let (np, ns) = (poles.len(), spans.len());
-        Filter { poles, spans, z: vec![C::new(0.0, 0.0); np], prev: vec![0.0; ns], settled: false }
+        Filter { poles, spans, z: vec![C::new(0.0, 0.0); np], prev: vec![0.0; ns], settled: false, buf: Vec::new() }
     }
 
     /// Whether the filter has no sections (the identity).
@@ -349,56 +410,60 @@ impl Filter {
         Ok(())
     }
 
-    /// `y = L x` over a record, starting at rest with `x[0]` (the sections fused in one
-    /// pass: the recursions are latency-bound, and independent ones in one loop overlap).
+    /// `y = L x` over a record, starting at rest with `x[0]`: section by section, each
+    /// pole's recursion over the whole record (its state stays in registers; a pass per
+    /// sample through every pole waits on memory), summed per sample in the order of
+    /// [`Filter::step`], so bit for bit its output. Leaves the filter settled at the
+    /// record's end.
     pub fn apply(&mut self, x: &[f64], y: &mut [f64]) {
         self.reset();
         let n = x.len().min(y.len());
         if n == 0 {
             return;
         }
-        y[0] = self.settle(x[0]);
-        for (o, &v) in y[1..n].iter_mut().zip(&x[1..n]) {
-            *o = self.advance(v);
+        let y = &mut y[..n];
+        if self.spans.is_empty() {
+            y.copy_from_slice(&x[..n]);
+            return;
         }
+        for k in 0..self.spans.len() {
+            // A section's input: the record, then the previous section's output.
+            if k > 0 {
+                self.buf.clear();
+                self.buf.extend_from_slice(y);
+            }
+            let inp = if k == 0 { &x[..n] } else { &self.buf[..] };
+            let (s, e, d) = self.spans[k];
+            y.iter_mut().zip(inp).for_each(|(o, &v)| *o = d * v);
+            for (f, z) in self.poles[s..e].iter().zip(&mut self.z[s..e]) {
+                *z = f.run(inp, y);
+            }
+            self.prev[k] = inp[n - 1];
+        }
+        self.settled = true;
     }
 
     /// `x = Lᵀ w`: the exact adjoint of [`Filter::apply`] (the at-rest start included),
-    /// the sections' adjoints in reverse order, backwards in time.
+    /// the sections' adjoints in reverse order, each pole backwards in time.
     pub fn adjoint(&mut self, w: &[f64], x: &mut [f64]) {
-        if self.spans.is_empty() {
-            x.copy_from_slice(w);
-            return;
-        }
+        let n = w.len().min(x.len());
+        let x = &mut x[..n];
+        x.copy_from_slice(&w[..n]);
         // G[m] = Σ_{k >= m} a^{k−m} g w[k]; x[m] gets b1 G[m] (m >= 1), b0 G[m+1]
         // (m <= n−2) and init G[0] (m = 0).
-        self.z.iter_mut().for_each(|g| *g = C::new(0.0, 0.0));
-        for m in (1..w.len()).rev() {
-            x[m] = self.adjoint_step(w[m], false);
-        }
-        if let Some(&w0) = w.first() {
-            x[0] = self.adjoint_step(w0, true);
+        for k in (0..self.spans.len()).rev() {
+            if n == 0 {
+                break;
+            }
+            self.buf.clear();
+            self.buf.extend_from_slice(x);
+            let (s, e, d) = self.spans[k];
+            x.iter_mut().zip(&self.buf).for_each(|(o, &v)| *o = d * v);
+            for f in &self.poles[s..e] {
+                f.run_adjoint(&self.buf, x);
+            }
         }
         self.settled = false;
-    }
-
-    /// One sample of [`Filter::adjoint`], backwards (the poles' states hold G[m + 1]);
-    /// `first`: the record's first sample (its input is the state at rest).
-    #[inline(always)]
-    fn adjoint_step(&mut self, w: f64, first: bool) -> f64 {
-        let mut v = w;
-        for &(s, e, d) in self.spans.iter().rev() {
-            let mut out = d * v;
-            for (f, gn) in self.poles[s..e].iter().zip(&mut self.z[s..e]) {
-                let gm = f.g * v + f.a * *gn;
-                let mut t = f.b0 * *gn;
-                t += if first { f.init * gm } else { f.b1 * gm };
-                out += t.re;
-                *gn = gm;
-            }
-            v = out;
-        }
-        v
     }
 }
 

@@ -35,7 +35,7 @@ use clarabel::algebra::CscMatrix;
 use clarabel::qdldl::{QDLDLFactorisation, QDLDLSettingsBuilder};
 
 use super::projection::{check_tie, Projection};
-use super::qp::{csc_upper, key};
+use super::qp::{csc_upper, key, Upper, DENSE_SUM_MAX};
 use super::rows::{combine, emit_row};
 use super::FitReport;
 use crate::blocks::lti::{Discretization, Filter, Lti};
@@ -126,7 +126,7 @@ impl Sparse<f64> {
     fn mul(&self, x: &[f64], y: &mut [f64]) {
         for (r, o) in y.iter_mut().enumerate() {
             let (cols, vals) = self.row(r);
-            *o = cols.iter().zip(vals).map(|(&i, &v)| v * x[i as usize]).sum();
+            *o = sum4(cols, vals, |&i, &v| v * x[i as usize]);
         }
     }
 }
@@ -137,15 +137,43 @@ impl Pairs {
     fn mul(&self, x: &[f64], y: &mut [[f64; 2]]) {
         for (r, o) in y.iter_mut().enumerate() {
             let (cols, vals) = self.row(r);
-            let mut s = [0.0; 2];
-            for (&i, v) in cols.iter().zip(vals) {
+            // Two partial sums per row (a row's sum waits on each addition otherwise).
+            let (mut s, mut t) = ([0.0; 2], [0.0; 2]);
+            let (c2, v2) = (cols.chunks_exact(2), vals.chunks_exact(2));
+            let (cr, vr) = (c2.remainder(), v2.remainder());
+            for (c, v) in c2.zip(v2) {
+                let (xa, xb) = (x[c[0] as usize], x[c[1] as usize]);
+                s[0] += v[0][0] * xa;
+                s[1] += v[0][1] * xa;
+                t[0] += v[1][0] * xb;
+                t[1] += v[1][1] * xb;
+            }
+            for (&i, v) in cr.iter().zip(vr) {
                 let xi = x[i as usize];
                 s[0] += v[0] * xi;
                 s[1] += v[1] * xi;
             }
-            *o = s;
+            *o = [s[0] + t[0], s[1] + t[1]];
         }
     }
+}
+
+/// `Σ f(c_k, v_k)` over a sparse row in four partial sums: the additions of one row
+/// overlap instead of each waiting on the last.
+#[inline(always)]
+fn sum4<V>(cols: &[u32], vals: &[V], f: impl Fn(&u32, &V) -> f64) -> f64 {
+    let mut s = [0.0; 4];
+    let (c4, v4) = (cols.chunks_exact(4), vals.chunks_exact(4));
+    let (cr, vr) = (c4.remainder(), v4.remainder());
+    for (c, v) in c4.zip(v4) {
+        for k in 0..4 {
+            s[k] += f(&c[k], &v[k]);
+        }
+    }
+    for (c, v) in cr.iter().zip(vr) {
+        s[0] += f(c, v);
+    }
+    (s[0] + s[1]) + (s[2] + s[3])
 }
 
 /// Append the union of two sorted sparse rows as pairs (a missing entry is 0).
@@ -418,14 +446,13 @@ impl SampleRows {
             return;
         }
         self.mix_t.mul(v, &mut self.vab);
+        let vab = &self.vab;
         for (i, o) in x[..self.n_q].iter_mut().enumerate() {
             let (gs, vals) = self.rows_t.row(i);
-            let mut s = 0.0;
-            for (&g, c) in gs.iter().zip(vals) {
-                let a = self.vab[g as usize];
-                s += c[0] * a[0] + c[1] * a[1];
-            }
-            *o = s;
+            *o = sum4(gs, vals, |&g, c| {
+                let a = vab[g as usize];
+                c[0] * a[0] + c[1] * a[1]
+            });
         }
     }
 
@@ -433,34 +460,17 @@ impl SampleRows {
     /// variable n_q): per group the entries are `wa ã + wb b̃` with ã = r_a + e_offset,
     /// and the 2×2 moment matrix of (wa, wb) gives the group's contribution. (Cross terms
     /// between groups sharing an averaged window are left out: a preconditioner only.)
-    /// Summed in a packed triangle when it holds at most [`DENSE_GRAM_MAX`] entries:
+    /// Summed in a packed triangle when it holds at most [`DENSE_SUM_MAX`] entries:
     /// a noisy input makes a group per sample, whose products (millions) would
     /// otherwise be sorted to be summed.
     fn gram(&self) -> Vec<(u64, f64)> {
-        self.gram_with(DENSE_GRAM_MAX)
+        self.gram_with(DENSE_SUM_MAX)
     }
 
     fn gram_with(&self, dense_max: usize) -> Vec<(u64, f64)> {
-        let dim = self.n_q + 1;
-        let packed = dim * (dim + 1) / 2;
-        if packed > dense_max {
-            let mut trip = Vec::new();
-            self.gram_products(|i, j, v| trip.push((key(i, j), v)));
-            return trip;
-        }
-        // Entry (row i, column j), i <= j, at j (j + 1) / 2 + i: column by column, the
-        // triplets come out in key order.
-        let mut acc = vec![0.0; packed];
-        self.gram_products(|i, j, v| {
-            let (r, c) = if i <= j { (i, j) } else { (j, i) };
-            acc[c * (c + 1) / 2 + r] += v;
-        });
-        let mut trip = Vec::new();
-        for c in 0..dim {
-            let col = &acc[c * (c + 1) / 2..(c + 1) * (c + 2) / 2];
-            trip.extend(col.iter().enumerate().filter(|(_, &v)| v != 0.0).map(|(r, &v)| (key(r, c), v)));
-        }
-        trip
+        let mut sums = Upper::new(self.n_q + 1, dense_max);
+        self.gram_products(|i, j, v| sums.add(i, j, v));
+        sums.into_triplets()
     }
 
     /// Every product of the Gram matrix's upper triangle, as (variable, variable, value).
@@ -510,10 +520,6 @@ impl SampleRows {
         }
     }
 }
-
-/// Largest packed triangle (entries) in which the preconditioner's Gram matrix is
-/// summed (64 MB: n_h up to about 88); beyond, its products are sorted and merged.
-const DENSE_GRAM_MAX: usize = 8 << 20;
 
 /// `M⁻¹` for the conjugate gradients: sparse LDLᵀ of the Gram matrix plus a ridge.
 /// Variables no sample observes (empty rows) are masked out: the ridge alone would

@@ -13,9 +13,10 @@
 //! only, so the merged rows and the objective's Hessian `BᵀB` in Everett coordinates are
 //! built once ([`Projection::new`]); a projection ([`Projection::project`]) sets the
 //! rows' targets `B x*` and the linear term, then runs the structured interior point
-//! (`qp::solve_everett_with`) on the kept Hessian. Assembling that Hessian (a triplet
-//! per pair of entries of every row, sorted and summed) costs more than the interior
-//! point itself on the diagnosis's records.
+//! (`qp::solve_everett_with`) on the kept Hessian. Assembling that Hessian (a product
+//! per pair of entries of every row, summed in a packed triangle where it fits: a noisy
+//! input makes a row per sample, and hundreds of millions of products) costs more than
+//! the interior point itself on the diagnosis's records.
 //!
 //! The optimal output is unique, the masses are not: a record leaves many combinations
 //! of masses undetermined (the cells its staircases never separate), and every point of
@@ -39,7 +40,9 @@ use std::time::Instant;
 
 use clarabel::algebra::CscMatrix;
 
-use super::qp::{csc_upper, everett_objective, linear_term_of, solve_everett_with, Problem, Solution};
+use super::qp::{
+    csc_upper, everett_objective_with, linear_term_of, solve_everett_with, Problem, Solution, DENSE_SUM_MAX,
+};
 use super::rows::{build_rows, Rows};
 use super::{excitation, min_max, never_on, pitfalls, seen_levels, FitReport, MAX_N_H_STRUCTURED};
 use crate::error::{check_scalar, check_signal, PreisachError, Result};
@@ -86,7 +89,7 @@ impl Projection {
         let (u_min, u_max) = min_max(u);
         let zero = never_on(grid, grid.position(u_max).ceil() as usize);
         let pb = Problem { rows: &rows, mu: 0.0, scale: 1.0, zero: &zero, reg: tie };
-        let (trip, _) = everett_objective(&pb);
+        let (trip, _) = everett_objective_with(&pb, DENSE_SUM_MAX);
         let hessian = csc_upper(rows.n_vars() + 1, trip)?;
         let (reversals, never, once) = excitation(&seen_levels(grid, u), n_h);
         let (lo, hi) = (grid.lo(), grid.hi());

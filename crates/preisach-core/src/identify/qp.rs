@@ -90,6 +90,66 @@ pub(super) fn csc_upper(n: usize, mut trip: Vec<(u64, f64)>) -> Result<CscMatrix
     csc(n, n, &trip)
 }
 
+/// Largest packed upper triangle (entries) in which a symmetric matrix's products are
+/// summed ([`Upper`]; 64 MB: n_h up to about 88); beyond, they are kept as triplets.
+pub(super) const DENSE_SUM_MAX: usize = 8 << 20;
+
+/// Products of a symmetric matrix's upper triangle, to be summed: in a packed triangle
+/// when it holds at most the given number of entries (a noisy input makes a row per
+/// sample, whose products, in the hundreds of millions, would otherwise be stored,
+/// sorted and merged), as keyed triplets otherwise.
+pub(super) enum Upper {
+    Packed { dim: usize, acc: Vec<f64> },
+    Triplets(Vec<(u64, f64)>),
+}
+
+impl Upper {
+    pub(super) fn new(dim: usize, dense_max: usize) -> Self {
+        let packed = dim * (dim + 1) / 2;
+        if packed <= dense_max {
+            Upper::Packed { dim, acc: vec![0.0; packed] }
+        } else {
+            Upper::Triplets(Vec::new())
+        }
+    }
+
+    /// Room for `n` more products (triplets only).
+    pub(super) fn reserve(&mut self, n: usize) {
+        if let Upper::Triplets(t) = self {
+            t.reserve(n);
+        }
+    }
+
+    /// Entry (i, j) or (j, i) gets `v`.
+    #[inline]
+    pub(super) fn add(&mut self, i: usize, j: usize, v: f64) {
+        match self {
+            // Entry (row r, column c), r <= c, at c (c + 1) / 2 + r: column by column.
+            Upper::Packed { acc, .. } => {
+                let (r, c) = if i <= j { (i, j) } else { (j, i) };
+                acc[c * (c + 1) / 2 + r] += v;
+            }
+            Upper::Triplets(t) => t.push((key(i, j), v)),
+        }
+    }
+
+    /// The keyed triplets for [`csc_upper`] (packed: the sums, in key order, zeros left
+    /// out).
+    pub(super) fn into_triplets(self) -> Vec<(u64, f64)> {
+        match self {
+            Upper::Triplets(t) => t,
+            Upper::Packed { dim, acc } => {
+                let mut trip = Vec::new();
+                for c in 0..dim {
+                    let col = &acc[c * (c + 1) / 2..(c + 1) * (c + 2) / 2];
+                    trip.extend(col.iter().enumerate().filter(|(_, &v)| v != 0.0).map(|(r, &v)| (key(r, c), v)));
+                }
+                trip
+            }
+        }
+    }
+}
+
 /// Key of the upper-triangle entry (row, col) or (col, row): the column in the high
 /// half, the row in the low one.
 #[inline]
@@ -235,13 +295,20 @@ fn clarabel_once(p: &CscMatrix<f64>, q: &[f64], a: &CscMatrix<f64>, cones: &[Sup
 /// offset): upper-triangular Hessian triplets keyed by [`key`] (duplicates to be summed)
 /// and the linear term, for `½ xᵀPx + qᵀx`.
 pub(super) fn everett_objective(pb: &Problem) -> (Vec<(u64, f64)>, Vec<f64>) {
+    everett_objective_with(pb, 0)
+}
+
+/// [`everett_objective`] with the Hessian's products summed in a packed triangle when it
+/// holds at most `dense_max` entries ([`Upper`]; the triplets then come summed, in key
+/// order).
+pub(super) fn everett_objective_with(pb: &Problem, dense_max: usize) -> (Vec<(u64, f64)>, Vec<f64>) {
     let rows = pb.rows;
     let n_h = rows.n_h;
     let n_q = rows.n_vars();
     let n_total = rows.n_samples as f64;
-    // One triplet per pair of entries in a row (the offset included).
-    let pairs: usize = rows.indptr.windows(2).map(|w| (w[1] - w[0] + 1) * (w[1] - w[0] + 2) / 2).sum();
-    let mut trip = Vec::with_capacity(pairs);
+    // One product per pair of entries in a row (the offset included).
+    let mut trip = Upper::new(n_q + 1, dense_max);
+    trip.reserve(rows.indptr.windows(2).map(|w| (w[1] - w[0] + 1) * (w[1] - w[0] + 2) / 2).sum());
     let mut ent: Vec<(usize, f64)> = Vec::new();
     for r in 0..rows.n_rows() {
         let (idx, val) = rows.row(r);
@@ -251,7 +318,7 @@ pub(super) fn everett_objective(pb: &Problem) -> (Vec<(u64, f64)>, Vec<f64>) {
         let cw = 2.0 * rows.weight[r] / n_total;
         for (k, &(i, vi)) in ent.iter().enumerate() {
             for &(j, vj) in &ent[k..] {
-                trip.push((key(i, j), cw * vi * vj));
+                trip.add(i, j, cw * vi * vj);
             }
         }
     }
@@ -269,13 +336,13 @@ pub(super) fn everett_objective(pb: &Problem) -> (Vec<(u64, f64)>, Vec<f64>) {
             for a in 0..d.len() {
                 for b in 0..d.len() {
                     if d[a].0 <= d[b].0 {
-                        trip.push((key(d[a].0, d[b].0), 2.0 * pb.reg * d[a].1 * d[b].1));
+                        trip.add(d[a].0, d[b].0, 2.0 * pb.reg * d[a].1 * d[b].1);
                     }
                 }
             }
         }
     }
-    (trip, linear_term(pb))
+    (trip.into_triplets(), linear_term(pb))
 }
 
 /// The linear term `q` of the objective in Everett coordinates (see [`everett_objective`]):
@@ -509,5 +576,73 @@ mod tests {
         assert_eq!(a.colptr, [0, 1, 2, 4, 5]);
         assert_eq!(a.rowval, [0, 1, 0, 2, 3]);
         assert_eq!(a.nzval, [0.0, 7.0, 3.0, 0.0, 0.0]);
+    }
+
+    /// The objective's Hessian summed in a packed triangle and as sorted triplets, both
+    /// against the plain sum of every row's outer product (and the smoothness term's).
+    #[test]
+    fn hessian_sums_packed_and_as_triplets_are_the_rows_outer_products() {
+        use crate::grid::Grid;
+        use crate::identify::rows::build_rows;
+        use crate::identify::testing::{input, Rng};
+        let mut rng = Rng(5);
+        for (case, (n_h, interpolated, reg)) in
+            [(6, true, 0.0), (9, true, 1e-3), (7, false, 1e-2)].into_iter().enumerate()
+        {
+            let grid = Grid::new(0.0, 1.0, n_h).unwrap();
+            let u = input(&mut rng, 3000);
+            let y: Vec<f64> = u.iter().map(|v| v * v).collect();
+            let rows = build_rows(&grid, &u, &y, interpolated);
+            let zero = vec![false; grid.n_q()];
+            let pb = Problem { rows: &rows, mu: 0.3, scale: 1.0, zero: &zero, reg };
+            let dim = rows.n_vars() + 1;
+            // The oracle: every row's (entries, offset) outer product, weighted, then the
+            // smoothness term's differences of masses.
+            let mut want = vec![0.0; dim * dim];
+            for r in 0..rows.n_rows() {
+                let (idx, val) = rows.row(r);
+                let mut e: Vec<(usize, f64)> = idx.iter().map(|&i| i as usize).zip(val.iter().copied()).collect();
+                e.push((dim - 1, rows.offset_coef[r]));
+                let cw = 2.0 * rows.weight[r] / rows.n_samples as f64;
+                for &(i, a) in &e {
+                    for &(j, b) in &e {
+                        want[i * dim + j] += cw * a * b;
+                    }
+                }
+            }
+            let cells = cell_coords(n_h);
+            let (mut d1, mut d2) = (Vec::new(), Vec::new());
+            for (c1, c2) in neighbour_pairs(n_h) {
+                mass_from_everett(cells[c1].0, cells[c1].1, &mut d1);
+                mass_from_everett(cells[c2].0, cells[c2].1, &mut d2);
+                let mut d = vec![0.0; dim];
+                d1.iter().for_each(|&(k, v)| d[k] += v);
+                d2.iter().for_each(|&(k, v)| d[k] -= v);
+                for i in 0..dim {
+                    for j in 0..dim {
+                        want[i * dim + j] += 2.0 * reg * d[i] * d[j];
+                    }
+                }
+            }
+            let scale = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for dense_max in [usize::MAX, 0] {
+                let p = csc_upper(dim, everett_objective_with(&pb, dense_max).0).unwrap();
+                let mut got = vec![0.0; dim * dim];
+                for c in 0..dim {
+                    for k in p.colptr[c]..p.colptr[c + 1] {
+                        got[p.rowval[k] * dim + c] = p.nzval[k];
+                    }
+                }
+                for i in 0..dim {
+                    for j in i..dim {
+                        let (g, w) = (got[i * dim + j], want[i * dim + j]);
+                        assert!(
+                            (g - w).abs() <= 1e-12 * scale,
+                            "case {case}, dense_max {dense_max}, ({i}, {j}): {g} vs {w}"
+                        );
+                    }
+                }
+            }
+        }
     }
 }
