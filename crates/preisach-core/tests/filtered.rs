@@ -146,7 +146,7 @@ fn fit_behind_rejects_bad_input_by_name() {
 }
 
 #[test]
-fn fused_cascade_equals_the_blocks_one_after_the_other() {
+fn cascade_equals_the_blocks_one_after_the_other() {
     let mut rng = Rng::new(9);
     let blocks = [creep(), mode(700.0, 0.01), mode(2300.0, 0.05), first_order(1e-4)];
     let mut l = cascade(&blocks, 2e-5);

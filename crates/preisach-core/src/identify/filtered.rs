@@ -468,7 +468,7 @@ impl SampleRows {
     }
 
     fn gram_with(&self, dense_max: usize) -> Vec<(u64, f64)> {
-        let mut sums = Upper::new(self.n_q + 1, dense_max);
+        let mut sums = Upper::new(self.n_q + 1, dense_max, None);
         self.gram_products(|i, j, v| sums.add(i, j, v));
         sums.into_triplets()
     }

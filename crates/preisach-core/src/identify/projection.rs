@@ -15,7 +15,7 @@
 //! rows' targets `B x*` and the linear term, then runs the structured interior point
 //! (`qp::solve_everett_with`) on the kept Hessian. Assembling that Hessian (a product
 //! per pair of entries of every row, summed in a packed triangle where it fits: a noisy
-//! input makes a row per sample, and hundreds of millions of products) costs more than
+//! input makes a row per sample, and tens of millions of products) costs more than
 //! the interior point itself on the diagnosis's records.
 //!
 //! The optimal output is unique, the masses are not: a record leaves many combinations

@@ -95,28 +95,23 @@ pub(super) fn csc_upper(n: usize, mut trip: Vec<(u64, f64)>) -> Result<CscMatrix
 pub(super) const DENSE_SUM_MAX: usize = 8 << 20;
 
 /// Products of a symmetric matrix's upper triangle, to be summed: in a packed triangle
-/// when it holds at most the given number of entries (a noisy input makes a row per
-/// sample, whose products, in the hundreds of millions, would otherwise be stored,
-/// sorted and merged), as keyed triplets otherwise.
+/// when it holds at most `dense_max` entries and the products outnumber them (a noisy
+/// input makes a row per sample, whose products, in the tens of millions, would
+/// otherwise be stored, sorted and merged), as keyed triplets otherwise (few products:
+/// a large triangle would cost more to clear and scan than they to sort).
 pub(super) enum Upper {
     Packed { dim: usize, acc: Vec<f64> },
     Triplets(Vec<(u64, f64)>),
 }
 
 impl Upper {
-    pub(super) fn new(dim: usize, dense_max: usize) -> Self {
+    /// For a `dim` × `dim` matrix and `products` products (`None`: many, not counted).
+    pub(super) fn new(dim: usize, dense_max: usize, products: Option<usize>) -> Self {
         let packed = dim * (dim + 1) / 2;
-        if packed <= dense_max {
+        if packed <= dense_max && products.is_none_or(|p| p > packed) {
             Upper::Packed { dim, acc: vec![0.0; packed] }
         } else {
-            Upper::Triplets(Vec::new())
-        }
-    }
-
-    /// Room for `n` more products (triplets only).
-    pub(super) fn reserve(&mut self, n: usize) {
-        if let Upper::Triplets(t) = self {
-            t.reserve(n);
+            Upper::Triplets(Vec::with_capacity(products.unwrap_or(0)))
         }
     }
 
@@ -307,8 +302,8 @@ pub(super) fn everett_objective_with(pb: &Problem, dense_max: usize) -> (Vec<(u6
     let n_q = rows.n_vars();
     let n_total = rows.n_samples as f64;
     // One product per pair of entries in a row (the offset included).
-    let mut trip = Upper::new(n_q + 1, dense_max);
-    trip.reserve(rows.indptr.windows(2).map(|w| (w[1] - w[0] + 1) * (w[1] - w[0] + 2) / 2).sum());
+    let pairs = rows.indptr.windows(2).map(|w| (w[1] - w[0] + 1) * (w[1] - w[0] + 2) / 2).sum();
+    let mut trip = Upper::new(n_q + 1, dense_max, Some(pairs));
     let mut ent: Vec<(usize, f64)> = Vec::new();
     for r in 0..rows.n_rows() {
         let (idx, val) = rows.row(r);
