@@ -186,9 +186,10 @@ fn nnls<'py>(
 #[pyclass(frozen, module = "preisach._preisach")]
 pub struct Behind {
     inner: Mutex<CoreBehind>,
-    /// What a session sharing this one's projection takes (read without the lock: the
-    /// session may be solving).
-    handle: ProjectionHandle,
+    /// What a session sharing this one's projection takes: the inner session's handle,
+    /// kept under a lock of its own (read while the session may be solving) and replaced
+    /// when the session shares another's.
+    handle: Mutex<ProjectionHandle>,
 }
 
 fn rows_of<'a>(name: &str, a: &'a Option<PyReadonlyArray2<'_, f64>>) -> PyResult<Vec<&'a [f64]>> {
@@ -223,7 +224,7 @@ impl Behind {
             let u = slice("u", &u)?;
             let mut b = py.detach(|| CoreBehind::new(u, n_h as usize, u_range, stride)).map_err(to_py)?;
             b.set_tie(tie).map_err(to_py)?;
-            let handle = b.projection_handle();
+            let handle = Mutex::new(b.projection_handle());
             Ok(Behind { inner: Mutex::new(b), handle })
         })
     }
@@ -234,8 +235,11 @@ impl Behind {
     /// ``other``'s).
     fn share(&self, py: Python<'_>, other: PyRef<'_, Behind>) -> PyResult<()> {
         guard(|| {
-            let handle = other.handle.clone();
-            py.detach(|| self.inner.lock().unwrap_or_else(|e| e.into_inner()).share_projection(&handle)).map_err(to_py)
+            let handle = other.handle.lock().unwrap_or_else(|e| e.into_inner()).clone();
+            py.detach(|| self.inner.lock().unwrap_or_else(|e| e.into_inner()).share_projection(&handle))
+                .map_err(to_py)?;
+            *self.handle.lock().unwrap_or_else(|e| e.into_inner()) = handle;
+            Ok(())
         })
     }
 
