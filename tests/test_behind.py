@@ -9,7 +9,7 @@ from lti_reference import apply_effects
 
 from preisach import Chain, PreisachModel, _preisach
 from preisach.diagnose.effects import FitState, Record
-from preisach.diagnose.search import Fitter, calibrate_slow
+from preisach.diagnose.search import PART_FLOOR, Fitter, calibrate_slow
 
 N_H = 5
 RANGE = (0.0, 1.0)
@@ -368,3 +368,37 @@ def test_another_n_h_is_fitted_as_a_fitter_of_that_n_h_would_and_its_fitter_kept
     assert fine.train_rmse == pytest.approx(alone.train_rmse, rel=1e-6)
     assert f._other(N_H + 4) is f._other(N_H + 4)
     assert f._other(N_H + 2) is not f._other(N_H + 4)
+
+
+@pytest.mark.parametrize("effects", [
+    {"lowpass": {"cutoff_hz": 150.0, "order": 2}},
+    {"vibration": {"frequency_hz": 300.0, "damping": 0.03},
+     "drift": {"gain_per_s": 0.5, "offset": 0.0, "offset_per_s": 0.0}},
+])
+def test_a_fit_from_a_later_sample_counts_only_there_with_the_memory_and_dynamics_before(effects):
+    """``Fitter(start=k)``: the profiled error of the samples from ``k`` on, the chain run
+    over the whole record (the hysteresis memory and the blocks' state at ``k`` are the
+    ones the samples before leave): dense least squares on the rows from ``k`` on of the
+    regression matrix through the blocks over the whole record (the oracle)."""
+    t, u = _input(n=6000, seed=4)
+    rng = np.random.default_rng(5)
+    y = np.sin(7 * u) + 0.3 * u + 0.01 * rng.standard_normal(u.size)
+    k = 3500
+    A = _dense(u, {n: p for n, p in effects.items() if n != "drift"})
+    cols = [A]
+    if "drift" in effects:  # y = (1 + g t)(chain) + o'' t
+        q = 1 + effects["drift"]["gain_per_s"] * t
+        cols = [A * q[:, None], t[:, None]]
+    # (The samples before weigh ``PART_FLOOR``: they only keep the fit regular.)
+    w = np.where(np.arange(u.size) >= k, 1.0, PART_FLOOR)
+    M = np.column_stack(cols) * np.sqrt(w)[:, None]
+    coef, *_ = np.linalg.lstsq(M, y * np.sqrt(w), rcond=None)
+    want = float(np.sum((M @ coef - y * np.sqrt(w)) ** 2) / np.sum(w))
+    f = Fitter(Record("r", t, u, y, DT), N_H, RANGE, stride=1, tol=1e-13, start=k)
+    assert f.J(effects) == pytest.approx(want, rel=1e-6)
+    # ... and so count for nothing: the fit of the samples from k on alone.
+    alone, *_ = np.linalg.lstsq(np.column_stack(cols)[k:], y[k:], rcond=None)
+    assert want == pytest.approx(float(np.mean((np.column_stack(cols)[k:] @ alone - y[k:]) ** 2)), rel=1e-4)
+    # The same samples cut out as a record of their own start from rest: another fit.
+    cut = Fitter(Record("r", t[k:], u[k:], y[k:], DT), N_H, RANGE, stride=1, tol=1e-13)
+    assert abs(cut.J(effects) / want - 1) > 1e-2

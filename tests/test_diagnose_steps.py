@@ -64,6 +64,56 @@ def test_every_step_fits_on_a_screen():
                 assert len(inspect.getsource(fn).splitlines()) <= 70, (mod.__name__, name)
 
 
+def test_an_accepted_effect_a_later_fit_left_trivial_is_no_longer_detected():
+    """A delay accepted for a lag that a low-pass fitted later takes over (its fit sets
+    the delay to 0): the pair's acceptance drops the delay, and keeps an accepted effect
+    that is still a real one of its kind."""
+    from types import SimpleNamespace
+
+    from preisach.diagnose.effects import FitState
+
+    s = _scale()
+    ranges = search_ranges(s.train.u, 1e-4, 0.2, 1e-4)
+    run = SimpleNamespace(base=SimpleNamespace(effects={}), fitter=SimpleNamespace(ranges=ranges))
+    fl = SimpleNamespace(scale=s)
+    lp = {"cutoff_hz": 650.0, "order": 2}
+    for delay, kept in ((0.0, ["lowpass"]), (5e-4, ["delay", "lowpass"])):
+        cur = FitState(None, {"delay": {"delay_s": delay}, "lowpass": lp})
+        found = steps.Found(cur, 0.01, np.ones(4), accepted=["delay", "lowpass"],
+                            tried={"delay": {"score": 0.9}, "lowpass": {"score": 0.9}})
+        steps.accept_pairs(run, found, fl, "lowpass")
+        assert found.accepted == kept
+        assert ("refused" in found.tried["delay"]) == (delay == 0.0)
+
+
+def test_an_effect_whose_first_halves_fold_cannot_pass_is_not_fitted_on_the_second():
+    """The fold on the first halves is the fit on the first half it explains most of; a
+    fold at its search bound or trivial is refused whatever the second halves give (the
+    rule every fold meets), so the effect is refused there and reported so."""
+    from types import SimpleNamespace
+
+    from preisach.diagnose.effects import FitState
+
+    s = _scale()
+    rg = search_ranges(s.train.u, 1e-4, 0.2, 1e-4)
+    lo = rg["lowpass"]["cutoff_hz"].lo
+    hos = [Record(f"holdout {i + 1}", s.train.t, s.train.u, s.train.y, 1e-4) for i in range(2)]
+    run = SimpleNamespace(hos=hos, say=lambda msg: None)
+    fl = SimpleNamespace(scale=s)
+    # (A low-pass beyond 0.3 of the fit's rate is trivial: 3 kHz here.)
+    for best, why in ((lo, "lower bound"), (1500.0, None), (3500.0, "trivial")):
+        fits = {("lowpass", 0, 0): ({"lowpass": {"cutoff_hz": 1000.0, "order": 1}}, rg, 0.1),
+                ("lowpass", 0, 1): ({"lowpass": {"cutoff_hz": best, "order": 2}}, rg, 0.4)}
+        found = steps.Found(FitState(None, {}), 0.01, np.ones(4))
+        assert steps._first_halves_refusal(run, found, fl, "lowpass", fits) == (why is not None)
+        if why is not None:
+            xf = found.cross_fit["lowpass"]
+            assert why in xf["refused"] and xf["folds"][0]["fit"] == "holdout 2 first half"
+            assert found.tried["lowpass"]["refused"] == xf["refused"]
+        else:
+            assert not found.cross_fit and not found.tried
+
+
 # ----------------------------------------------------------------- cross-fitting
 def _mode_found_cross_fitted(rep, f_true):
     found = [(e["name"], e["detected"], e["refused"]) for e in rep.effects]
@@ -269,3 +319,30 @@ def test_refit_masses_without_a_baseline_is_a_one_line_error(tmp_path, capsys):
                  str(tmp_path / "r.json"), "--refit-masses"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code != 0 and len(err) == 1 and "--refit-masses" in err[0] and "--baseline" in err[0]
+
+
+@pytest.mark.parametrize("seed", [int(s) for s in np.random.default_rng(17).integers(1 << 20, size=2)])
+def test_a_holdouts_halves_show_its_mode_after_a_step_from_rest(seed):
+    """The rig's records start with a step from rest and ring: the first half of the steps
+    holdout is fitted with the rest step's transient, the second from the memory and the
+    ringing the first half leaves; each half gives the rig's mode (within 3 %)."""
+    import rig
+
+    from preisach.diagnose import crossfit as cf
+    from preisach.diagnose.effects import FitState
+    from preisach.diagnose.search import Trials
+    from preisach.model import PreisachModel, PreisachWarning
+
+    case = rig.make_case("step_from_rest", seed)
+    tr, hos = rig.records(case)
+    steps = Record("holdout 1", hos[0]["t"], hos[0]["u"], hos[0]["y"], float(hos[0]["t"][1] - hos[0]["t"][0]))
+    pad = 0.05 * float(np.ptp(tr["u"]))
+    u_range = (float(tr["u"].min()) - pad, float(tr["u"].max()) + pad)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PreisachWarning)
+        st = FitState(PreisachModel.fit(tr["u"], tr["y"], 40, u_range=u_range, output="interpolated"), {})
+    f0, z0 = case["truth"]["modes"][0]
+    for k in (0, 1):
+        eff, _, gain = cf.fit_on(steps, st, "vibration", u_range, 12.5e3, Trials(1), k, rest=True)
+        assert abs(eff["vibration"]["frequency_hz"] / f0 - 1) < 0.03 and gain > 0.5, (k, eff, gain)
+        assert abs(math.log(eff["vibration"]["damping"] / z0)) < math.log(1.3), (k, eff)

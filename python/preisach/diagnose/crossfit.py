@@ -12,20 +12,21 @@ sample was used to fit the parameters it is scored with:
   jointly with each fitted record's starting staircase (the memory of unrecorded
   history shows only at a record's start; a delay shifts all of it);
 - any other fast effect (``holdout_halves``): its own search on half of a holdout (the
-  masses profiled there), then the chain found with it, masses from the training record,
+  masses profiled there; the second half from the memory and the dynamics' state the
+  first leaves), then the chain found with it, masses from the training record,
   scores the other halves of every holdout; the other half likewise.
 """
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from preisach.diagnose.effects import FitState, Record, _grid_then_parabola
 from preisach.diagnose.initial import Map, Start, estimate, own_start, predictor, staircases
-from preisach.diagnose.ranges import Bound, Ranges, delay_grid
+from preisach.diagnose.ranges import Bound, Ranges, delay_grid, search_ranges
 from preisach.diagnose.registry import REGISTRY
 from preisach.diagnose.search import Effects, Fitter, Trials
 
@@ -178,8 +179,7 @@ def consistent(folds: list[dict[str, Any]], min_delay: float) -> bool:
 
 # -- any effect, on halves of the holdouts ----------------------------------------------
 def half(rec: Record, k: int) -> Record:
-    """The first (``k`` = 0) or second half of a record, as a record of its own (it
-    starts at rest: the masses profiled on it absorb part of the unknown memory)."""
+    """The first (``k`` = 0) or second half of a record, as a record of its own."""
     m = rec.y.size // 2
     sl = slice(0, m) if k == 0 else slice(m, None)
     return Record(f"{rec.name} {HALF[k]} half", rec.t[sl], rec.u[sl], rec.y[sl], rec.dt)
@@ -189,13 +189,20 @@ HALF = ("first", "second")
 
 
 def fit_on(rec: Record, st: FitState, name: str, u_range: tuple[float, float], search_rate_hz: float,
-           trials: Trials) -> tuple[Effects, Ranges, float]:
+           trials: Trials, k: Optional[int] = None, rest: bool = False) -> tuple[Effects, Ranges, float]:
     """The chain ``st`` plus effect ``name``, searched on ``rec`` (window averages down to
     about ``search_rate_hz``; the masses profiled on it, a mode's band fit behind the
-    chain's own masses), the ranges searched (from ``rec``) and the share of the profiled
-    error on ``rec`` the effect removes there (how clearly ``rec`` shows it)."""
+    chain's own masses), the ranges searched (from the part fitted) and the share of the
+    profiled error there the effect removes (how clearly it shows it). ``k``: on that half
+    of ``rec`` only (``half``; the second run on from the hysteresis memory and the
+    dynamics' state the first leaves, not from rest). ``rest``: ``rec`` starts with a step
+    from rest (its transient fitted with the masses, ``preisach.diagnose.rest``)."""
     stride = max(1, int(round(1.0 / (rec.dt * search_rate_hz))))
-    f = Fitter(rec, st.model.n_h, u_range, stride, trials=trials)
+    part = rec if k is None else half(rec, k)
+    ranges = search_ranges(part.u, rec.dt, float(part.t[-1] - part.t[0]), rec.dt * stride)
+    f = Fitter(rec if k == 1 else part, st.model.n_h, u_range, stride, trials=trials, ranges=ranges,
+               start=rec.y.size // 2 if k == 1 else 0)
+    f.rest = rest and k != 1
     with trials.search():
         eff = REGISTRY[name].fit(f, st.effects, f.hysteresis(st.model, {}))
         j0 = f.J(st.effects)
@@ -226,17 +233,22 @@ HalfFits = dict[tuple[str, int, int], tuple[Effects, Ranges, float]]
 
 
 def half_fits(st: FitState, names: list[str], hos: list[Record], u_range: tuple[float, float],
-              search_rate_hz: float, trials: Trials, run: Callable[..., Any] = map) -> HalfFits:
+              search_rate_hz: float, trials: Trials, run: Callable[..., Any] = map,
+              rests: Sequence[bool] = (), halves: Sequence[int] = (0, 1)) -> HalfFits:
     """Every effect of ``names`` fitted on every half of every holdout (``fit_on``), by
     (effect, half, holdout); the fits are independent, and ``run`` (a ``map``: a thread
-    pool's runs them side by side) takes them in the order of ``names``."""
-    keys = [(c, k, i) for c in names for k in (0, 1) for i in range(len(hos))]
-    fits = run(lambda key: fit_on(half(hos[key[2]], key[1]), st, key[0], u_range, search_rate_hz, trials), keys)
+    pool's runs them side by side) takes them in the order of ``names``. ``rests``: per
+    holdout, whether it starts with a step from rest (its first half is fitted with the
+    transient). ``halves``: which (0: the first, 1: the second)."""
+    keys = [(c, k, i) for c in names for k in halves for i in range(len(hos))]
+    fits = run(lambda key: fit_on(hos[key[2]], st, key[0], u_range, search_rate_hz, trials, key[1],
+                                  key[2] < len(rests) and rests[key[2]]), keys)
     return dict(zip(keys, fits))
 
 
 def holdout_halves(st: FitState, name: str, hos: list[Record], errors: Errors, train: Fitter,
-                   search_rate_hz: float, trials: Trials, fits: Optional[HalfFits] = None) -> dict[str, Any]:
+                   search_rate_hz: float, trials: Trials, fits: Optional[HalfFits] = None,
+                   rests: Sequence[bool] = ()) -> dict[str, Any]:
     """Effect ``name`` cross-fitted on the holdouts' halves: for each half (first,
     second), fitted on that half of every holdout, the fit kept from the one it explains
     most of (where the effect shows), and every holdout's other half scored with it.
@@ -245,14 +257,14 @@ def holdout_halves(st: FitState, name: str, hos: list[Record], errors: Errors, t
     or second half: never on itself), ``folds`` (what was fitted on what, the parameters
     found and the masses used; ``_state``, ``_ranges``, ``_gain``, ``_record`` internal)
     and ``target`` (the holdout the effect shows most on). ``fits``: the fits on the
-    halves (``half_fits``), made here when not given."""
+    halves (``half_fits``, with ``rests``), made here when not given."""
     out = [np.empty(h.y.size) for h in hos]
     folds: list[dict[str, Any]] = []
     for k in (0, 1):
         sl = [slice(0, h.y.size // 2) if k == 0 else slice(h.y.size // 2, None) for h in hos]
         parts = [half(h, k) for h in hos]
         if fits is None or (name, k, 0) not in fits:
-            fits = half_fits(st, [name], hos, train.u_range, search_rate_hz, trials)
+            fits = half_fits(st, [name], hos, train.u_range, search_rate_hz, trials, rests=rests)
         on = [fits[(name, k, i)] for i in range(len(hos))]
         i = int(np.argmax([g for _, _, g in on]))
         part, (eff, rg, g) = parts[i], on[i]
@@ -270,7 +282,8 @@ def holdout_halves(st: FitState, name: str, hos: list[Record], errors: Errors, t
 
 
 def saved_fit(st: FitState, name: str, rec: Record, train: Fitter, search_rate_hz: float,
-              trials: Trials) -> tuple[FitState, str]:
-    """The chain to keep: effect ``name`` fitted on the whole of ``rec``."""
-    eff, _, _ = fit_on(rec, st, name, train.u_range, search_rate_hz, trials)
+              trials: Trials, rest: bool = False) -> tuple[FitState, str]:
+    """The chain to keep: effect ``name`` fitted on the whole of ``rec`` (``rest``: it
+    starts with a step from rest)."""
+    eff, _, _ = fit_on(rec, st, name, train.u_range, search_rate_hz, trials, rest=rest)
     return with_effect(train, st, eff)

@@ -53,6 +53,8 @@ R = TypeVar("R")
 CREEP_CAL_TAU_MAX_RECORDS = 10.0
 #: Creep time constants per decade of the grid whose chains the held-out records score.
 CREEP_PER_DECADE = 2
+#: The weight of the samples before a fit's start (``Fitter(start=)``).
+PART_FLOOR = 1e-6
 
 #: Scalars polished per effect: (parameter, first step: relative, or in log units; the
 #: ranges come from the data, ``preisach.diagnose.ranges``). A mode's frequency needs
@@ -218,11 +220,13 @@ class Fitter:
     by less than this fraction of it (3e-5: along a mode's frequency the profiled error
     rises the same as at 1e-5 to within 2 %, at 13 % fewer iterations). ``shared``: a
     fitter of the same record and range (another stride): the masses' projections of
-    both are built once per grid."""
+    both are built once per grid. ``start``: the fit's error counts from this sample of
+    the record on; the samples before it only set the hysteresis memory and the dynamics'
+    state there (a later part of a record does not start at rest)."""
 
     def __init__(self, rec: Record, n_h: int, u_range: tuple[float, float], stride: int = 1,
                  tol: float = 3e-5, trials: Optional[Trials] = None, ranges: Optional[Ranges] = None,
-                 shared: Optional[Fitter] = None) -> None:
+                 shared: Optional[Fitter] = None, start: int = 0) -> None:
         from preisach import _preisach
 
         self._behind = _preisach.Behind
@@ -246,6 +250,17 @@ class Fitter:
         self.t = window_mean(rec.t, self.stride)
         self.y = window_mean(rec.y, self.stride)
         self.dt = rec.dt * self.stride
+        #: The weights of the windows the error counts on (None: all; the window the
+        #: start falls in by its share after the start), and the first such window. The
+        #: windows before weigh ``PART_FLOOR``: they count for nothing, but an Everett
+        #: value only they observe stays determined (left free, the conjugate gradients
+        #: can break down on it).
+        self.weights: Optional[NDArray[np.float64]] = None
+        self.start, self.first = start, 0
+        if start > 0:
+            share = window_mean((np.arange(rec.y.size) >= start).astype(np.float64), self.stride)
+            self.first = int(np.argmax(share > 0))
+            self.weights = np.maximum(share, PART_FLOOR)
         #: Every scalar's search range (from the data; see ``preisach.diagnose.ranges``).
         self.ranges: Ranges = ranges if ranges is not None else search_ranges(
             rec.u, rec.dt, float(rec.t[-1] - rec.t[0]), self.dt)
@@ -327,11 +342,11 @@ class Fitter:
     def _problem(self, eff: Effects) -> dict[str, Any]:
         t, y = self.t, self.y
         chain = Chain(None, {k: eff[k] for k in ("creep", "vibration", "lowpass", "delay") if k in eff})
-        z, w, post, pre, q = y, None, None, None, None
+        z, w, post, pre, q = y, self.weights, None, None, None
         if "drift" in eff:
             q = 1 + eff["drift"]["gain_per_s"] * t
             z = y / q
-            w = q * q
+            w = q * q if w is None else w * q * q
             # y = (1 + g t)(chain + c) + o'' t: the constant stays in the model's offset.
             post = np.ascontiguousarray((t / q)[None, :])
         if "rate" in eff:
@@ -391,7 +406,7 @@ class Fitter:
         res = self._solve(pb)
         mse = res["rmse"] ** 2
         if pb["q"] is not None:
-            mse *= float(np.mean(pb["q"] ** 2))  # back to the output's units
+            mse *= float(np.average(pb["q"] ** 2, weights=self.weights))  # back to the output's units
         self.evaluations += 1
         with self._lock:
             self._memo[k] = (mse, list(res["extra"]))
@@ -414,7 +429,7 @@ class Fitter:
         model = identified(PreisachModel._wrap(res["model"], "interpolated"), self._u)
         e = self._linear(eff, res["extra_nnls"])
         st = FitState(model, e)
-        st.train_rmse = rmse(self.predict(st) - self.y)
+        st.train_rmse = rmse((self.predict(st) - self.y)[self.first:])
         return st
 
     def _other(self, n_h: int) -> Fitter:
@@ -424,7 +439,7 @@ class Fitter:
             f = self._others.get(n_h)
             if f is None:
                 f = self._others[n_h] = Fitter(self.rec, n_h, self.u_range, self.stride, self.tol, self.trials,
-                                               self.ranges, shared=self)
+                                               self.ranges, shared=self, start=self.start)
         f.rest = self.rest
         return f
 
@@ -708,7 +723,8 @@ class Fitter:
         heavily damped "mode"). Returns the chain with the mode (and the nuisance block)."""
         from preisach.diagnose.effects import _golden, _grid_then_golden
 
-        t, y, dt = self.t, self.y, self.dt
+        t, dt, part = self.t, self.dt, slice(self.first, None)  # (the spectra of the part fitted)
+        y = self.y[part]
         others = {k: v for k, v in eff.items() if k != "vibration"}
         if h is None:
             h = self.hysteresis(self.state(others).model, {})
@@ -727,10 +743,10 @@ class Fitter:
         # The chain as it is (its delay a phase factor), for the peaks and the variant
         # that keeps its lag.
         d0 = others.get("delay", {}).get("delay_s", 0.0)
-        base_keep = _run(lin, t, h)
+        base_keep = _run(lin, t, h)[part]
         B_keep = np.multiply(spec(base_keep), _response({"delay": {"delay_s": d0}}, f))
         # Without its delay and low-pass, for the variant whose lag is fitted in the band.
-        B_free = spec(_run({k: v for k, v in lin.items() if k != "lowpass"}, t, h))
+        B_free = spec(_run({k: v for k, v in lin.items() if k != "lowpass"}, t, h)[part])
         dgrid = np.arange(0.0, 1.5e-3, 2e-5)
         cgrid = np.geomspace(100.0, 2e4, 24)
 

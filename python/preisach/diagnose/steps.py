@@ -549,11 +549,13 @@ def accept(run: Run, found: Found, fl: Floors, results: dict[str, Result], rnd: 
 def accept_pairs(run: Run, found: Found, fl: Floors, best: str) -> None:
     """The effects fitted with ``best`` as a pair (a mode whose ringing needed a delay)
     that are real ones of their kind are accepted with it; an accepted effect its fit
-    replaced (a low-pass that stood in for the lag a mode's fit gave to a delay) is
-    dropped. A low-pass fitted with it that is not accepted (at a search bound, or the
-    record's timing) is replaced by a delay of its lag: the chain saved holds the
-    effects the report names, and the record's timing as a delay."""
-    for x in [k for k in found.accepted if k != best and k in REGISTRY and k not in found.cur.effects]:
+    replaced (a low-pass that stood in for the lag a mode's fit gave to a delay), or left
+    trivial (a delay whose lag a low-pass took), is dropped. A low-pass fitted with it
+    that is not accepted (at a search bound, or the record's timing) is replaced by a
+    delay of its lag: the chain saved holds the effects the report names, and the
+    record's timing as a delay."""
+    for x in [k for k in found.accepted if k != best and k in REGISTRY and (
+            k not in found.cur.effects or trivial(k, found.cur.effects[k], fl.scale))]:
         found.accepted.remove(x)
         found.tried[x]["refused"] = f"replaced in the fit of {best}"
     for x in found.cur.effects:
@@ -734,12 +736,38 @@ def _halves_refusal(run: Run, found: Found, fl: Floors, c: str, xf: dict[str, An
         sc_st = run.score(st)
         if lag.is_timing(run.score, st, sc_st, run.min_shrink, fl.accept, fl.scale.min_delay):
             return lag.TIMING
-        # A delay only the holdouts carry is fitted after these effects: a low-pass must
-        # beat a delay of its lag there (the same masses) by the candidates' rule.
+        # A low-pass must beat a delay of its lag on the holdouts (the same masses) by the
+        # candidates' rule.
         sc_d = run.score(FitState(st.model, lag.delay_equivalent(st.effects), st.train_rmse))
         if not passes(run, fl, sc_d, sc_st):
             return f"no better than a delay of its lag (holdout RMSE {sc_d:.4g})"
     return None
+
+
+def _first_halves_refusal(run: Run, found: Found, fl: Floors, c: str, fits: cf.HalfFits) -> bool:
+    """Effect ``c``'s fold on the first halves (the fit on the first half it explains most
+    of) is trivial or at its search bound: refused whatever the second halves give (every
+    fold must be neither); recorded as refused. Returns whether it was."""
+    on = [fits[(c, 0, i)] for i in range(len(run.hos))]
+    i = int(np.argmax([g for _, _, g in on]))
+    eff, rg, g = on[i]
+    bounds = ends_at_bound(c, eff[c], rg)
+    if trivial(c, eff[c], fl.scale):
+        why = "trivial parameters on the first halves"
+    elif bounds:
+        why = "at its search bound on the first halves: " + "; ".join(bounds)
+    else:
+        return False
+    run.say(f"{c} fitted on the holdouts' first halves: refused ({why})")
+    params = {k: v for k, v in eff[c].items() if not k.startswith("_")}
+    found.cross_fit[c] = {"folds": [{"fit": cf.half(run.hos[i], 0).name, "score": [], "params": params,
+                                     "masses": "the training record's", "explained_on_fit": g}], "refused": why}
+    if c not in found.tried:
+        st = FitState(found.cur.model, dict(found.cur.effects, **{c: eff[c]}), found.cur.train_rmse)
+        found.tried[c] = {"state": st, "rmse_after": found.score, "rmse_current": found.score, "score": 0.0,
+                          "round": len(found.accepted) + 1, "fitted_on": "holdouts' halves (see split.cross_fit)",
+                          "refused": why}
+    return True
 
 
 def holdout_halves(run: Run, found: Found, fl: Floors) -> None:
@@ -752,9 +780,13 @@ def holdout_halves(run: Run, found: Found, fl: Floors) -> None:
     if not names or found.score <= 1.2 * fl.accept:
         return
 
+    # A holdout that starts with a step from rest: its first half is fitted with the
+    # transient (the mode rings there most).
+    rests = [rest.starts_with_step(run.base.residuals[h.name], h.dt) for h in run.hos]
+
     def one(c: str) -> tuple[str, dict[str, Any]]:
         return c, cf.holdout_halves(found.cur, c, run.hos, run.holdout_errors, run.fitter, run.search_rate_hz,
-                                    run.trials, fits)
+                                    run.trials, fits, rests)
 
     passing = []
     with warnings.catch_warnings(), run.trials.tasks(run.trials.workers) as ex:
@@ -762,8 +794,13 @@ def holdout_halves(run: Run, found: Found, fl: Floors) -> None:
         # The fits on the halves, every effect's on every half side by side (the slowest
         # first: the threads end together), then each effect's folds scored.
         order = sorted(names, key=lambda c: SLOW_FIRST.index(c) if c in SLOW_FIRST else len(SLOW_FIRST))
-        fits = cf.half_fits(found.cur, order, run.hos, run.fitter.u_range, run.search_rate_hz, run.trials, ex.map)
-        for c, xf in ex.map(one, names):
+        fits = cf.half_fits(found.cur, order, run.hos, run.fitter.u_range, run.search_rate_hz, run.trials, ex.map,
+                            rests, halves=(0,))
+        # An effect whose fold on the first halves cannot pass is not fitted on the second.
+        hopeless = [c for c in names if _first_halves_refusal(run, found, fl, c, fits)]
+        fits.update(cf.half_fits(found.cur, [c for c in order if c not in hopeless], run.hos, run.fitter.u_range,
+                                 run.search_rate_hz, run.trials, ex.map, rests, halves=(1,)))
+        for c, xf in ex.map(one, [c for c in names if c not in hopeless]):
             sc, parts = run.parts_of(xf["errors"])
             why = _halves_refusal(run, found, fl, c, xf, sc, parts)
             run.say(f"{c} fitted on the holdouts' halves (cross-fitted): holdout RMSE {sc:.4g} "
@@ -782,7 +819,8 @@ def holdout_halves(run: Run, found: Found, fl: Floors) -> None:
     if not passing:
         return
     sc, c, parts, xf = min(passing, key=lambda p: p[0])
-    st, masses = cf.saved_fit(found.cur, c, xf["target"], run.fitter, run.search_rate_hz, run.trials)
+    st, masses = cf.saved_fit(found.cur, c, xf["target"], run.fitter, run.search_rate_hz, run.trials,
+                              rests[run.hos.index(xf["target"])])
     found.cross_fit[c]["saved"] = {"fit": xf["target"].name, "masses": masses}
     found.tried[c] = {"state": st, "rmse_after": sc, "rmse_current": found.score, "score": gain(found.score, sc),
                       "round": len(found.accepted) + 1, "fitted_on": "holdouts' halves (see split.cross_fit)"}
@@ -807,11 +845,11 @@ def drop_redundant(run: Run, found: Found, best: str) -> None:
 
 
 def holdout_effects(run: Run, found: Found, fl: Floors) -> None:
-    """Effects only the holdouts carry: the fast ones on the holdouts' halves, then a
-    delay added to the chain found."""
+    """Effects only the holdouts carry: a delay added to the chain found (the simplest
+    explanation of a lag only they show), then the fast effects on the holdouts' halves."""
     before = list(found.accepted)
-    holdout_halves(run, found, fl)
     holdout_delay_step(run, found, fl)
+    holdout_halves(run, found, fl)
     if any(k not in before for k in found.accepted):
         drop_slow(run, found, fl)
 
