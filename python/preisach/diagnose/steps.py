@@ -28,7 +28,7 @@ from preisach.diagnose import kept, lag, rest, sessions
 from preisach.diagnose.crossfit import consistent, holdout_delay
 from preisach.diagnose.effects import CANDIDATES, FitState, Record, rmse
 from preisach.diagnose.initial import Starts, own_start
-from preisach.diagnose.ranges import ends_at_bound
+from preisach.diagnose.ranges import Ranges, ends_at_bound
 from preisach.diagnose.records import RecordLike, check_distinct, holdout_list, load_record, reversals
 from preisach.diagnose.registry import OWN_STEPS, REGISTRY, SLOW_FIRST, Scale, trivial
 from preisach.diagnose.search import Effects, Fitter, Trials, calibrate_slow
@@ -722,14 +722,11 @@ def _halves_refusal(run: Run, found: Found, fl: Floors, c: str, xf: dict[str, An
     strong = min(f["_gain"] for f in xf["folds"]) >= 0.5
     if not strong and np.any(parts > found.parts * 1.05 + 1e-12):
         return "worsens part of a holdout"
-    ps = [f["params"] for f in xf["folds"]]
-    if any(trivial(c, f["_state"].effects[c], fl.scale) for f in xf["folds"]):
-        return "trivial parameters"
-    if not cf.agree(c, ps):
+    flaws = [w for f in xf["folds"] if (w := _fold_flaw(fl, c, f["_state"].effects[c], f["_ranges"]))]
+    if flaws:
+        return flaws[0]
+    if not cf.agree(c, [f["params"] for f in xf["folds"]]):
         return f"the folds disagree on {REGISTRY[c].agree[0]}"
-    bounds = [b for f in xf["folds"] for b in ends_at_bound(c, f["_state"].effects[c], f["_ranges"])]
-    if bounds:
-        return "at its search bound: " + "; ".join(bounds)
     if c == "lowpass":
         # The record's timing, as in the search: a fold's chain against its delay equivalent.
         st = xf["folds"][0]["_state"]
@@ -744,20 +741,26 @@ def _halves_refusal(run: Run, found: Found, fl: Floors, c: str, xf: dict[str, An
     return None
 
 
+def _fold_flaw(fl: Floors, c: str, p: dict[str, Any], ranges: Ranges) -> Optional[str]:
+    """Why a fold's parameters ``p`` of effect ``c`` cannot be detected (trivial, or at a
+    bound of the ``ranges`` it searched), or None."""
+    if trivial(c, p, fl.scale):
+        return "trivial parameters"
+    bounds = ends_at_bound(c, p, ranges)
+    return "at its search bound: " + "; ".join(bounds) if bounds else None
+
+
 def _first_halves_refusal(run: Run, found: Found, fl: Floors, c: str, fits: cf.HalfFits) -> bool:
     """Effect ``c``'s fold on the first halves (the fit on the first half it explains most
-    of) is trivial or at its search bound: refused whatever the second halves give (every
-    fold must be neither); recorded as refused. Returns whether it was."""
+    of) is trivial or at its search bound (``_fold_flaw``): refused whatever the second
+    halves give (every fold must be neither); recorded as refused. Returns whether it was."""
     on = [fits[(c, 0, i)] for i in range(len(run.hos))]
     i = int(np.argmax([g for _, _, g in on]))
     eff, rg, g = on[i]
-    bounds = ends_at_bound(c, eff[c], rg)
-    if trivial(c, eff[c], fl.scale):
-        why = "trivial parameters on the first halves"
-    elif bounds:
-        why = "at its search bound on the first halves: " + "; ".join(bounds)
-    else:
+    flaw = _fold_flaw(fl, c, eff[c], rg)
+    if flaw is None:
         return False
+    why = f"{flaw}, on the first halves"
     run.say(f"{c} fitted on the holdouts' first halves: refused ({why})")
     params = {k: v for k, v in eff[c].items() if not k.startswith("_")}
     found.cross_fit[c] = {"folds": [{"fit": cf.half(run.hos[i], 0).name, "score": [], "params": params,
