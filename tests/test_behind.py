@@ -370,6 +370,27 @@ def test_another_n_h_is_fitted_as_a_fitter_of_that_n_h_would_and_its_fitter_kept
     assert f._other(N_H + 2) is not f._other(N_H + 4)
 
 
+def test_a_chain_asked_for_again_is_the_one_fitted_and_the_callers_own(drift_record):
+    """``Fitter.state`` keeps the chains it fitted (a projection is the costly part): the
+    same chain asked for again is the same fit, and what a caller changes in the one it
+    got does not reach the next caller; another chain, or the same one with a step from
+    rest, is fitted anew."""
+    rec, _ = drift_record
+    f = Fitter(rec, N_H, RANGE, stride=2)
+    eff = {"drift": {"gain_per_s": 0.02, "offset": 0.0, "offset_per_s": 0.0}}
+    a = f.state(eff)
+    a.effects["drift"]["offset_per_s"] = 99.0
+    a.effects["creep"] = {}
+    b = f.state(eff)
+    assert b.model is a.model and b.train_rmse == a.train_rmse
+    assert set(b.effects) == {"drift"} and b.effects["drift"]["offset_per_s"] == pytest.approx(-0.03 - 0.05 * 0.02,
+                                                                                                abs=2e-3)
+    other = f.state({"drift": {"gain_per_s": 0.0, "offset": 0.0, "offset_per_s": 0.0}})
+    assert other.model is not a.model and other.train_rmse > 2 * a.train_rmse
+    f.rest = True
+    assert f.state(eff).model is not a.model
+
+
 @pytest.mark.parametrize("effects", [
     {"lowpass": {"cutoff_hz": 150.0, "order": 2}},
     {"vibration": {"frequency_hz": 300.0, "damping": 0.03},

@@ -247,6 +247,10 @@ def test_the_holdout_delay_fit_is_the_plain_one(source):
         for hs in (hos, hos[:1]):
             outs = {h.name: profiles(stt, h) for h in hs}
             xf = holdout_delay(stt, hs, lambda s, hs=hs: [s.predict(h) - h.y for h in hs], bound)
+            # Folds that no delay of at least ``min_delay`` fits alike are not scored.
+            skip = holdout_delay(stt, hs, lambda s, hs=hs: [s.predict(h) - h.y for h in hs], bound, min_delay=1.0)
+            assert xf["errors"] is not None and skip["errors"] is None and skip["plain"] is None
+            assert skip["folds"] == xf["folds"] and skip["added_s"] == xf["added_s"]
             if len(hs) >= 2:
                 fits = [[(g, slice(None)) for g in hs if g is not h] for h in hs]
             else:

@@ -129,45 +129,55 @@ def _fit_delay(st: FitState, parts: list[tuple[Record, slice]], bound: Bound,
 
 
 def holdout_delay(st: FitState, hos: list[Record], errors: Errors, bound: Bound, run: Map = map,
-                  start: Optional[Start] = None) -> dict[str, Any]:
+                  start: Optional[Start] = None, min_delay: Optional[float] = None) -> dict[str, Any]:
     """A delay only the holdouts carry, cross-fitted: the added delay fitted on the other
     holdouts (or the other half of a single one) and each holdout (half) scored with it,
     with its own starting staircase where its start carries an error of its own
     (``initial.own_start``: the start is judged apart from the delay).
 
-    Returns ``errors`` (per holdout, cross-fitted, as ``errors`` computes them for a
-    chain, the staircases applied), ``plain`` (the same without them), ``folds`` (what
-    was fitted on what, and the delay found), ``added_s`` (the delay fitted on every
-    holdout, for the saved chain) and ``state`` (the chain with it). ``run`` (a ``map``)
-    takes the chain's runs; ``start``: a chain's starting staircase on a record
-    (default ``initial.estimate``)."""
+    Returns ``folds`` (what was fitted on what, and the delay found), ``added_s`` (the
+    delay fitted on every holdout, for the saved chain), ``state`` (the chain with it),
+    ``errors`` (per holdout, cross-fitted, as ``errors`` computes them for a chain, the
+    staircases applied) and ``plain`` (the same without them); with ``min_delay``, the
+    last two are None when the folds are not ``consistent`` with it (no delay can be
+    accepted then, and scoring the folds costs most). ``run`` (a ``map``) takes the
+    chain's runs; ``start``: a chain's starting staircase on a record (default
+    ``initial.estimate``)."""
     start = start or (lambda s, r: estimate(s, r, run=run))
     outs = {h.name: distinct(profiles(st, h, run)) for h in hos}
     memo: Memo = {}
-    out = [np.empty(h.y.size) for h in hos]
-    plain = [np.empty(h.y.size) for h in hos]
-    folds = []
+    # Per fold: the parts fitted, the holdout scored and the samples of it scored.
     if len(hos) >= 2:
-        for i, h in enumerate(hos):
-            fit = [(g, slice(None)) for g in hos if g is not h]
-            d = _fit_delay(st, fit, bound, outs, memo)
-            sd = _with_delay(st, d)
-            plain[i] = errors(sd)[i]
-            out[i] = own_start(sd, h, plain[i], start(sd, h), run)[0]
-            folds.append({"fit": [g.name for g, _ in fit], "score": h.name, "added_s": d})
+        plan = [([(g, slice(None)) for g in hos if g is not h], i, slice(None)) for i, h in enumerate(hos)]
     else:
-        h = hos[0]
-        m = h.y.size // 2
-        for on, score, label in ((slice(0, m), slice(m, None), "second"), (slice(m, None), slice(0, m), "first")):
-            d = _fit_delay(st, [(h, on)], bound, outs, memo)
-            sd = _with_delay(st, d)
-            e = errors(sd)[0]
-            plain[0][score] = e[score]
-            out[0][score] = own_start(sd, h, e, start(sd, h), run)[0][score]
-            folds.append({"fit": [f"{h.name} {'first' if label == 'second' else 'second'} half"],
-                          "score": f"{h.name} {label} half", "added_s": d})
+        m = hos[0].y.size // 2
+        plan = [([(hos[0], slice(0, m))], 0, slice(m, None)), ([(hos[0], slice(m, None))], 0, slice(0, m))]
+    folds: list[dict[str, Any]] = [{"fit": _part_names(fit, hos), "score": _part_name(hos[i], sl, hos),
+                                    "added_s": _fit_delay(st, fit, bound, outs, memo)} for fit, i, sl in plan]
     added = _fit_delay(st, [(h, slice(None)) for h in hos], bound, outs, memo)
-    return {"errors": out, "plain": plain, "folds": folds, "added_s": added, "state": _with_delay(st, added)}
+    out: dict[str, Any] = {"folds": folds, "added_s": added, "state": _with_delay(st, added), "errors": None,
+                           "plain": None}
+    if min_delay is not None and not consistent(folds, min_delay):
+        return out
+    out["errors"] = [np.empty(h.y.size) for h in hos]
+    out["plain"] = [np.empty(h.y.size) for h in hos]
+    for (_, i, sl), f in zip(plan, folds):
+        sd = _with_delay(st, f["added_s"])
+        e = errors(sd)[i]
+        out["plain"][i][sl] = e[sl]
+        out["errors"][i][sl] = own_start(sd, hos[i], e, start(sd, hos[i]), run)[0][sl]
+    return out
+
+
+def _part_name(r: Record, sl: slice, hos: list[Record]) -> str:
+    """A record's name, or its half's when ``sl`` is one of a single holdout's halves."""
+    if len(hos) >= 2 or (sl.start is None and sl.stop is None):
+        return r.name
+    return f"{r.name} {HALF[0] if sl.start in (None, 0) else HALF[1]} half"
+
+
+def _part_names(parts: list[tuple[Record, slice]], hos: list[Record]) -> list[str]:
+    return [_part_name(r, sl, hos) for r, sl in parts]
 
 
 def consistent(folds: list[dict[str, Any]], min_delay: float) -> bool:
@@ -246,39 +256,46 @@ def half_fits(st: FitState, names: list[str], hos: list[Record], u_range: tuple[
     return dict(zip(keys, fits))
 
 
+def fold(st: FitState, name: str, hos: list[Record], errors: Errors, train: Fitter, fits: HalfFits,
+         k: int) -> tuple[dict[str, Any], list[NDArray[np.float64]]]:
+    """Effect ``name``'s fold on the holdouts' ``k``-th halves (0: first, 1: second): the
+    fit (``half_fits``) on the one it explains most of (where the effect shows), the chain
+    found with it (``with_effect``), and that chain's errors on every holdout's other
+    half (never on a sample it was fitted on). Returns the fold (what was fitted on what,
+    the parameters found and the masses used; ``_state``, ``_ranges``, ``_gain``,
+    ``_record`` internal) and the errors, per holdout."""
+    on = [fits[(name, k, i)] for i in range(len(hos))]
+    i = int(np.argmax([g for _, _, g in on]))
+    eff, rg, g = on[i]
+    sk, masses = with_effect(train, st, eff)
+    other = [slice(h.y.size // 2, None) if k == 0 else slice(0, h.y.size // 2) for h in hos]
+    scored = [e[s] for e, s in zip(errors(sk), other)]
+    return ({"fit": half(hos[i], k).name, "score": [f"{h.name} {HALF[1 - k]} half" for h in hos],
+             "params": {kk: v for kk, v in sk.effects[name].items() if not kk.startswith("_")},
+             "masses": masses, "explained_on_fit": g, "_state": sk, "_ranges": rg, "_gain": g, "_record": hos[i]},
+            scored)
+
+
 def holdout_halves(st: FitState, name: str, hos: list[Record], errors: Errors, train: Fitter,
                    search_rate_hz: float, trials: Trials, fits: Optional[HalfFits] = None,
-                   rests: Sequence[bool] = ()) -> dict[str, Any]:
-    """Effect ``name`` cross-fitted on the holdouts' halves: for each half (first,
-    second), fitted on that half of every holdout, the fit kept from the one it explains
-    most of (where the effect shows), and every holdout's other half scored with it.
+                   rests: Sequence[bool] = (), first: Optional[tuple[dict[str, Any], list[Any]]] = None
+                   ) -> dict[str, Any]:
+    """Effect ``name`` cross-fitted on the holdouts' halves: its fold on the first halves
+    and its fold on the second (``fold``), each scoring every holdout's other half.
 
     Returns ``errors`` (per holdout, each half scored with the effect fitted on a first
-    or second half: never on itself), ``folds`` (what was fitted on what, the parameters
-    found and the masses used; ``_state``, ``_ranges``, ``_gain``, ``_record`` internal)
-    and ``target`` (the holdout the effect shows most on). ``fits``: the fits on the
-    halves (``half_fits``, with ``rests``), made here when not given."""
-    out = [np.empty(h.y.size) for h in hos]
-    folds: list[dict[str, Any]] = []
-    for k in (0, 1):
-        sl = [slice(0, h.y.size // 2) if k == 0 else slice(h.y.size // 2, None) for h in hos]
-        parts = [half(h, k) for h in hos]
-        if fits is None or (name, k, 0) not in fits:
-            fits = half_fits(st, [name], hos, train.u_range, search_rate_hz, trials, rests=rests)
-        on = [fits[(name, k, i)] for i in range(len(hos))]
-        i = int(np.argmax([g for _, _, g in on]))
-        part, (eff, rg, g) = parts[i], on[i]
-        sk, masses = with_effect(train, st, eff)
-        for o, e, s in zip(out, errors(sk), sl):
-            other = np.ones(e.size, dtype=bool)
-            other[s] = False
-            o[other] = e[other]
-        folds.append({"fit": part.name, "score": [f"{h.name} {HALF[1 - k]} half" for h in hos],
-                      "params": {kk: v for kk, v in sk.effects[name].items() if not kk.startswith("_")},
-                      "masses": masses, "explained_on_fit": g, "_state": sk, "_ranges": rg, "_gain": g,
-                      "_record": hos[i]})
-    target = max(folds, key=lambda f: f["_gain"])["_record"]
-    return {"errors": out, "folds": folds, "target": target}
+    or second half: never on itself), ``folds`` (``fold``'s) and ``target`` (the holdout
+    the effect shows most on). ``fits``: the fits on the halves (``half_fits``, with
+    ``rests``), made here when not given; ``first``: the fold on the first halves, when
+    already made."""
+    if fits is None or any((name, k, 0) not in fits for k in (0, 1)):
+        fits = half_fits(st, [name], hos, train.u_range, search_rate_hz, trials, rests=rests)
+    folds = [first if first is not None else fold(st, name, hos, errors, train, fits, 0),
+             fold(st, name, hos, errors, train, fits, 1)]
+    # The first halves' fold scored the second halves, and the other way round.
+    out = [np.concatenate([e1, e0]) for e0, e1 in zip(folds[0][1], folds[1][1])]
+    target = max(folds, key=lambda f: f[0]["_gain"])[0]["_record"]
+    return {"errors": out, "folds": [f for f, _ in folds], "target": target}
 
 
 def saved_fit(st: FitState, name: str, rec: Record, train: Fitter, search_rate_hz: float,

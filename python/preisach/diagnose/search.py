@@ -74,6 +74,9 @@ DYNAMIC = ("vibration", "lowpass")
 LAG_SHARES = (0.0, 0.15, 0.3, 0.45, 0.6, 0.75, 0.9)
 #: Columns from full-rate runs a fitter keeps (``Fitter._kept``; each is one averaged record).
 COLUMNS_KEPT = 128
+#: The chains with masses >= 0 a fitter keeps (``Fitter.state``: a projection costs
+#: as much as a hundred conjugate-gradient steps, and the steps ask for some chains again).
+STATES_KEPT = 64
 #: Effects whose parameters trade off against each other's (polished together): a delay
 #: and the dynamics share the lag; a low-pass and creep both shape the step response.
 #: (Creep and drift trade off too, but one record cannot tell them apart: polishing one
@@ -243,6 +246,7 @@ class Fitter:
         self._lock = threading.Lock()
         self._memo: dict[tuple[Any, ...], tuple[float, list[float]]] = {}
         self._columns: dict[tuple[Any, ...], Optional[NDArray[np.float64]]] = {}
+        self._states: dict[tuple[Any, ...], FitState] = {}
         self._others: dict[int, Fitter] = {}
         self.evaluations = 0
         self._u = np.ascontiguousarray(rec.u, dtype=np.float64)
@@ -424,13 +428,20 @@ class Fitter:
         coefficients refitted with them."""
         if n_h is not None and n_h != self.n_h:
             return self._other(n_h).state(eff)
-        pb = self._problem(eff)
-        res = self._solve(pb, nnls=True)
-        model = identified(PreisachModel._wrap(res["model"], "interpolated"), self._u)
-        e = self._linear(eff, res["extra_nnls"])
-        st = FitState(model, e)
-        st.train_rmse = rmse((self.predict(st) - self.y)[self.first:])
-        return st
+        k = (self.rest,) + _key(eff)
+        with self._lock:
+            st = self._states.get(k)
+        if st is None:
+            pb = self._problem(eff)
+            res = self._solve(pb, nnls=True)
+            model = identified(PreisachModel._wrap(res["model"], "interpolated"), self._u)
+            st = FitState(model, self._linear(eff, res["extra_nnls"]))
+            st.train_rmse = rmse((self.predict(st) - self.y)[self.first:])
+            with self._lock:
+                if len(self._states) >= STATES_KEPT:
+                    del self._states[next(iter(self._states))]
+                self._states[k] = st
+        return FitState(st.model, {n: dict(p) for n, p in st.effects.items()}, st.train_rmse)
 
     def _other(self, n_h: int) -> Fitter:
         """The fitter of the same record with ``n_h`` levels (kept: its sessions are the

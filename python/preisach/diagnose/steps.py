@@ -25,7 +25,7 @@ import numpy as np
 from preisach.chain import Chain, load
 from preisach.diagnose import crossfit as cf
 from preisach.diagnose import kept, lag, rest, sessions
-from preisach.diagnose.crossfit import consistent, holdout_delay
+from preisach.diagnose.crossfit import holdout_delay
 from preisach.diagnose.effects import CANDIDATES, FitState, Record, rmse
 from preisach.diagnose.initial import Starts, own_start
 from preisach.diagnose.ranges import Ranges, ends_at_bound
@@ -712,10 +712,15 @@ def refine(run: Run, found: Found, fl: Floors) -> None:
 
 
 # -- the holdouts ----------------------------------------------------------------------
+def _no_gain(run: Run, found: Found, fl: Floors, sc: float) -> bool:
+    """A holdout RMSE of ``sc`` (or any higher) leaves the chain no gain by the halves' rule."""
+    return gain(found.score, sc) < run.min_shrink or found.score - sc < 0.5 * fl.accept or sc >= fl.hyst_alone
+
+
 def _halves_refusal(run: Run, found: Found, fl: Floors, c: str, xf: dict[str, Any], sc: float,
                     parts: np.ndarray) -> Optional[str]:
     """Why effect ``c`` cross-fitted on the holdouts' halves is not accepted, or None."""
-    if gain(found.score, sc) < run.min_shrink or found.score - sc < 0.5 * fl.accept or sc >= fl.hyst_alone:
+    if _no_gain(run, found, fl, sc):
         return "no gain on the holdouts cross-fitted"
     # (As in the search: an effect that explains most of the error on the parts it was
     # fitted on may leave part of a holdout worse; another effect may dominate there.)
@@ -750,6 +755,19 @@ def _fold_flaw(fl: Floors, c: str, p: dict[str, Any], ranges: Ranges) -> Optiona
     return "at its search bound: " + "; ".join(bounds) if bounds else None
 
 
+def _refused_on_halves(found: Found, c: str, why: str, folds: list[dict[str, Any]], st: FitState,
+                       sc: float, **extra: Any) -> None:
+    """Record effect ``c`` refused on the holdouts' halves: its folds and why (the report's
+    ``split.cross_fit``), and the chain with it among the candidates tried (unless the
+    training record's search tried it), at holdout RMSE ``sc``."""
+    found.cross_fit[c] = {"folds": [{k: v for k, v in f.items() if not k.startswith("_")} for f in folds],
+                          **extra, "refused": why}
+    if c not in found.tried:
+        found.tried[c] = {"state": st, "rmse_after": sc, "rmse_current": found.score, "score": gain(found.score, sc),
+                          "round": len(found.accepted) + 1, "fitted_on": "holdouts' halves (see split.cross_fit)",
+                          "refused": why}
+
+
 def _first_halves_refusal(run: Run, found: Found, fl: Floors, c: str, fits: cf.HalfFits) -> bool:
     """Effect ``c``'s fold on the first halves (the fit on the first half it explains most
     of) is trivial or at its search bound (``_fold_flaw``): refused whatever the second
@@ -762,14 +780,27 @@ def _first_halves_refusal(run: Run, found: Found, fl: Floors, c: str, fits: cf.H
         return False
     why = f"{flaw}, on the first halves"
     run.say(f"{c} fitted on the holdouts' first halves: refused ({why})")
-    params = {k: v for k, v in eff[c].items() if not k.startswith("_")}
-    found.cross_fit[c] = {"folds": [{"fit": cf.half(run.hos[i], 0).name, "score": [], "params": params,
-                                     "masses": "the training record's", "explained_on_fit": g}], "refused": why}
-    if c not in found.tried:
-        st = FitState(found.cur.model, dict(found.cur.effects, **{c: eff[c]}), found.cur.train_rmse)
-        found.tried[c] = {"state": st, "rmse_after": found.score, "rmse_current": found.score, "score": 0.0,
-                          "round": len(found.accepted) + 1, "fitted_on": "holdouts' halves (see split.cross_fit)",
-                          "refused": why}
+    st = FitState(found.cur.model, dict(found.cur.effects, **{c: eff[c]}), found.cur.train_rmse)
+    _refused_on_halves(found, c, why, [{"fit": cf.half(run.hos[i], 0).name, "score": [], "params": {
+        k: v for k, v in eff[c].items() if not k.startswith("_")}, "masses": "the training record's",
+        "explained_on_fit": g}], st, found.score)
+    return True
+
+
+def _first_fold_refusal(run: Run, found: Found, fl: Floors, c: str,
+                        first: tuple[dict[str, Any], list[np.ndarray]]) -> bool:
+    """Effect ``c``'s fold on the first halves (``crossfit.fold``) already leaves no gain
+    with the errors it gives the second halves alone: the cross-fitted RMSE of both folds
+    is at least what those errors give over every holdout's samples, so the effect is
+    refused whatever the second halves give; recorded as refused. Returns whether it was."""
+    fold, scored = first
+    least = math.sqrt(sum(float(np.sum(np.square(e))) for e in scored) / sum(h.y.size for h in run.hos))
+    if not _no_gain(run, found, fl, least):
+        return False
+    why = "no gain on the holdouts cross-fitted, from the first halves' fold alone"
+    run.say(f"{c} fitted on the holdouts' first halves: holdout RMSE at least {least:.4g} (without: "
+            f"{found.score:.4g}); refused ({why})")
+    _refused_on_halves(found, c, why, [fold], fold["_state"], least, rmse_after_at_least=least)
     return True
 
 
@@ -786,39 +817,35 @@ def holdout_halves(run: Run, found: Found, fl: Floors) -> None:
     # A holdout that starts with a step from rest: its first half is fitted with the
     # transient (the mode rings there most).
     rests = [rest.starts_with_step(run.base.residuals[h.name], h.dt) for h in run.hos]
-
-    def one(c: str) -> tuple[str, dict[str, Any]]:
-        return c, cf.holdout_halves(found.cur, c, run.hos, run.holdout_errors, run.fitter, run.search_rate_hz,
-                                    run.trials, fits, rests)
-
     passing = []
     with warnings.catch_warnings(), run.trials.tasks(run.trials.workers) as ex:
         warnings.simplefilter("ignore", PreisachWarning)
         # The fits on the halves, every effect's on every half side by side (the slowest
-        # first: the threads end together), then each effect's folds scored.
+        # first: the threads end together), then each effect's folds scored. An effect
+        # whose fold on the first halves cannot pass is not fitted on the second.
         order = sorted(names, key=lambda c: SLOW_FIRST.index(c) if c in SLOW_FIRST else len(SLOW_FIRST))
         fits = cf.half_fits(found.cur, order, run.hos, run.fitter.u_range, run.search_rate_hz, run.trials, ex.map,
                             rests, halves=(0,))
-        # An effect whose fold on the first halves cannot pass is not fitted on the second.
-        hopeless = [c for c in names if _first_halves_refusal(run, found, fl, c, fits)]
-        fits.update(cf.half_fits(found.cur, [c for c in order if c not in hopeless], run.hos, run.fitter.u_range,
-                                 run.search_rate_hz, run.trials, ex.map, rests, halves=(1,)))
-        for c, xf in ex.map(one, [c for c in names if c not in hopeless]):
+        order = [c for c in order if not _first_halves_refusal(run, found, fl, c, fits)]
+        firsts = dict(zip(order, ex.map(lambda c: cf.fold(found.cur, c, run.hos, run.holdout_errors, run.fitter,
+                                                          fits, 0), order)))
+        order = [c for c in order if not _first_fold_refusal(run, found, fl, c, firsts[c])]
+        fits.update(cf.half_fits(found.cur, order, run.hos, run.fitter.u_range, run.search_rate_hz, run.trials,
+                                 ex.map, rests, halves=(1,)))
+        order = [c for c in names if c in order]
+        for c, xf in zip(order, ex.map(lambda c: cf.holdout_halves(
+                found.cur, c, run.hos, run.holdout_errors, run.fitter, run.search_rate_hz, run.trials, fits, rests,
+                firsts[c]), order)):
             sc, parts = run.parts_of(xf["errors"])
             why = _halves_refusal(run, found, fl, c, xf, sc, parts)
             run.say(f"{c} fitted on the holdouts' halves (cross-fitted): holdout RMSE {sc:.4g} "
                     f"(without: {found.score:.4g}){'' if why is None else f'; refused ({why})'}")
-            found.cross_fit[c] = {"folds": [{k: v for k, v in f.items() if not k.startswith("_")}
-                                            for f in xf["folds"]], "rmse_after": sc}
             if why is None:
+                found.cross_fit[c] = {"folds": [{k: v for k, v in f.items() if not k.startswith("_")}
+                                                for f in xf["folds"]], "rmse_after": sc}
                 passing.append((sc, c, parts, xf))
             else:
-                found.cross_fit[c]["refused"] = why
-                if c not in found.tried:
-                    st = xf["folds"][0]["_state"]
-                    found.tried[c] = {"state": st, "rmse_after": sc, "rmse_current": found.score,
-                                      "score": gain(found.score, sc), "round": len(found.accepted) + 1,
-                                      "fitted_on": "holdouts' halves (see split.cross_fit)", "refused": why}
+                _refused_on_halves(found, c, why, xf["folds"], xf["folds"][0]["_state"], sc, rmse_after=sc)
     if not passing:
         return
     sc, c, parts, xf = min(passing, key=lambda p: p[0])
@@ -879,27 +906,32 @@ def holdout_delay_step(run: Run, found: Found, fl: Floors) -> None:
     if "delay" not in run.candidates or "delay" in found.accepted or found.score <= 1.2 * fl.accept:
         return
     base = timing_chain(run, found.cur)
+    xf = holdout_delay(base, run.hos, run.holdout_errors, run.fitter.ranges["delay"]["delay_s"], run.trials.map,
+                       run.starts, fl.scale.min_delay)
+    found.cross_fit["delay"] = {"folds": xf["folds"], "added_s": xf["added_s"],
+                                "base_delay_s": float(base.effects.get("delay", {}).get("delay_s", 0.0))}
+    added = ", ".join(f"{1e3 * f['added_s']:.3g} ms on {'+'.join(f['fit'])}" for f in xf["folds"])
+    if xf["errors"] is None:
+        # (Not scored: the folds' delays alone refuse it.)
+        short = min(f["added_s"] for f in xf["folds"]) < fl.scale.min_delay
+        early = "no delay on some holdouts" if short else "the holdouts disagree on the delay"
+        found.cross_fit["delay"]["refused"] = early
+        run.say(f"delay fitted on the holdouts (cross-fitted): {added}; refused ({early})")
+        return
     e0 = run.holdout_errors(base)
     sc0, _ = run.parts_of([own_start(base, h, e, run.starts(base, h), run.trials.map)[0]
                            for h, e in zip(run.hos, e0)])
-    xf = holdout_delay(base, run.hos, run.holdout_errors, run.fitter.ranges["delay"]["delay_s"], run.trials.map,
-                       run.starts)
     sc, _ = run.parts_of(xf["errors"])
     sc_plain, parts_x = run.parts_of(xf["plain"])
     g = gain(sc0, sc)
     run.say(f"delay fitted on the holdouts (cross-fitted): holdout RMSE {sc:.4g} (without: {sc0:.4g}; each holdout's "
-            f"start with its own staircase); "
-            + ", ".join(f"{1e3 * f['added_s']:.3g} ms on {'+'.join(f['fit'])}" for f in xf["folds"]))
+            f"start with its own staircase); {added}")
     why = None
     if g < run.min_shrink or sc0 - sc < 0.5 * fl.accept or sc_plain >= fl.hyst_alone:
         why = "no gain on the holdouts cross-fitted"
-    elif not consistent(xf["folds"], fl.scale.min_delay):
-        why = "the holdouts disagree on the delay"
     elif ends_at_bound("delay", xf["state"].effects["delay"], run.fitter.ranges):
         why = "at its search bound: " + "; ".join(ends_at_bound("delay", xf["state"].effects["delay"],
                                                                  run.fitter.ranges))
-    found.cross_fit["delay"] = {"folds": xf["folds"], "added_s": xf["added_s"],
-                                "base_delay_s": float(base.effects.get("delay", {}).get("delay_s", 0.0))}
     if why is None:
         found.tried["delay"] = {"state": xf["state"], "rmse_after": sc, "rmse_current": sc0, "score": g,
                                 "round": len(found.accepted) + 1, "fitted_on": "holdouts"}
