@@ -146,14 +146,16 @@ def holdout_delay(st: FitState, hos: list[Record], errors: Errors, bound: Bound,
     start = start or (lambda s, r: estimate(s, r, run=run))
     outs = {h.name: distinct(profiles(st, h, run)) for h in hos}
     memo: Memo = {}
-    # Per fold: the parts fitted, the holdout scored and the samples of it scored.
+    # Per fold: the parts fitted, the holdout scored and the samples of it scored; their names.
     if len(hos) >= 2:
         plan = [([(g, slice(None)) for g in hos if g is not h], i, slice(None)) for i, h in enumerate(hos)]
+        names = [([g.name for g in hos if g is not h], h.name) for h in hos]
     else:
-        m = hos[0].y.size // 2
-        plan = [([(hos[0], slice(0, m))], 0, slice(m, None)), ([(hos[0], slice(m, None))], 0, slice(0, m))]
-    folds: list[dict[str, Any]] = [{"fit": _part_names(fit, hos), "score": _part_name(hos[i], sl, hos),
-                                    "added_s": _fit_delay(st, fit, bound, outs, memo)} for fit, i, sl in plan]
+        h, hv = hos[0], halves(hos[0])
+        plan = [([(h, hv[k])], 0, hv[1 - k]) for k in (0, 1)]
+        names = [([half_name(h, k)], half_name(h, 1 - k)) for k in (0, 1)]
+    folds: list[dict[str, Any]] = [{"fit": fit, "score": score, "added_s": _fit_delay(st, parts, bound, outs, memo)}
+                                   for (parts, _, _), (fit, score) in zip(plan, names)]
     added = _fit_delay(st, [(h, slice(None)) for h in hos], bound, outs, memo)
     out: dict[str, Any] = {"folds": folds, "added_s": added, "state": _with_delay(st, added), "errors": None,
                            "plain": None}
@@ -169,17 +171,6 @@ def holdout_delay(st: FitState, hos: list[Record], errors: Errors, bound: Bound,
     return out
 
 
-def _part_name(r: Record, sl: slice, hos: list[Record]) -> str:
-    """A record's name, or its half's when ``sl`` is one of a single holdout's halves."""
-    if len(hos) >= 2 or (sl.start is None and sl.stop is None):
-        return r.name
-    return f"{r.name} {HALF[0] if sl.start in (None, 0) else HALF[1]} half"
-
-
-def _part_names(parts: list[tuple[Record, slice]], hos: list[Record]) -> list[str]:
-    return [_part_name(r, sl, hos) for r, sl in parts]
-
-
 def consistent(folds: list[dict[str, Any]], min_delay: float) -> bool:
     """Every fold found a delay longer than ``min_delay``, within 25 % of each other (a
     channel's delay is the same on every record it reads)."""
@@ -188,14 +179,24 @@ def consistent(folds: list[dict[str, Any]], min_delay: float) -> bool:
 
 
 # -- any effect, on halves of the holdouts ----------------------------------------------
+HALF = ("first", "second")
+
+
+def halves(rec: Record) -> tuple[slice, slice]:
+    """The samples of a record's first and second halves."""
+    m = rec.y.size // 2
+    return slice(0, m), slice(m, None)
+
+
+def half_name(rec: Record, k: int) -> str:
+    """The name of a record's first (``k`` = 0) or second half."""
+    return f"{rec.name} {HALF[k]} half"
+
+
 def half(rec: Record, k: int) -> Record:
     """The first (``k`` = 0) or second half of a record, as a record of its own."""
-    m = rec.y.size // 2
-    sl = slice(0, m) if k == 0 else slice(m, None)
-    return Record(f"{rec.name} {HALF[k]} half", rec.t[sl], rec.u[sl], rec.y[sl], rec.dt)
-
-
-HALF = ("first", "second")
+    sl = halves(rec)[k]
+    return Record(half_name(rec, k), rec.t[sl], rec.u[sl], rec.y[sl], rec.dt)
 
 
 def fit_on(rec: Record, st: FitState, name: str, u_range: tuple[float, float], search_rate_hz: float,
@@ -211,7 +212,7 @@ def fit_on(rec: Record, st: FitState, name: str, u_range: tuple[float, float], s
     part = rec if k is None else half(rec, k)
     ranges = search_ranges(part.u, rec.dt, float(part.t[-1] - part.t[0]), rec.dt * stride)
     f = Fitter(rec if k == 1 else part, st.model.n_h, u_range, stride, trials=trials, ranges=ranges,
-               start=rec.y.size // 2 if k == 1 else 0)
+               start=halves(rec)[1].start if k == 1 else 0)
     f.rest = rest and k != 1
     with trials.search():
         eff = REGISTRY[name].fit(f, st.effects, f.hysteresis(st.model, {}))
@@ -268,9 +269,8 @@ def fold(st: FitState, name: str, hos: list[Record], errors: Errors, train: Fitt
     i = int(np.argmax([g for _, _, g in on]))
     eff, rg, g = on[i]
     sk, masses = with_effect(train, st, eff)
-    other = [slice(h.y.size // 2, None) if k == 0 else slice(0, h.y.size // 2) for h in hos]
-    scored = [e[s] for e, s in zip(errors(sk), other)]
-    return ({"fit": half(hos[i], k).name, "score": [f"{h.name} {HALF[1 - k]} half" for h in hos],
+    scored = [e[halves(h)[1 - k]] for e, h in zip(errors(sk), hos)]
+    return ({"fit": half_name(hos[i], k), "score": [half_name(h, 1 - k) for h in hos],
              "params": {kk: v for kk, v in sk.effects[name].items() if not kk.startswith("_")},
              "masses": masses, "explained_on_fit": g, "_state": sk, "_ranges": rg, "_gain": g, "_record": hos[i]},
             scored)

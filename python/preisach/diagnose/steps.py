@@ -103,7 +103,7 @@ class Run:
 
     @property
     def halves(self) -> list[tuple[slice, slice]]:
-        return [(slice(0, h.y.size // 2), slice(h.y.size // 2, None)) for h in self.hos]
+        return [cf.halves(h) for h in self.hos]
 
     def holdout_errors(self, st: FitState) -> Errors:
         """Errors on each holdout. A chain with drift or creep has them recalibrated
@@ -465,6 +465,12 @@ def passes(run: Run, fl: Floors, before: float, after: float) -> bool:
     return gain(before, after) >= run.min_shrink and before - after >= 0.5 * fl.accept
 
 
+def beats_floors(run: Run, fl: Floors, before: float, after: float) -> bool:
+    """``passes``, and ``after`` below what the finer hysteresis alone achieves: the rule
+    of the effects judged on the holdouts after the search."""
+    return passes(run, fl, before, after) and after < fl.hyst_alone
+
+
 def held_out_evidence(run: Run, found: Found, fl: Floors, c: str, st: FitState, sc: float,
                       rival: Optional[float]) -> Optional[str]:
     """Why candidate ``c`` fails the held-out evidence of its kind (``registry``), or
@@ -712,15 +718,10 @@ def refine(run: Run, found: Found, fl: Floors) -> None:
 
 
 # -- the holdouts ----------------------------------------------------------------------
-def _no_gain(run: Run, found: Found, fl: Floors, sc: float) -> bool:
-    """A holdout RMSE of ``sc`` (or any higher) leaves the chain no gain by the halves' rule."""
-    return gain(found.score, sc) < run.min_shrink or found.score - sc < 0.5 * fl.accept or sc >= fl.hyst_alone
-
-
 def _halves_refusal(run: Run, found: Found, fl: Floors, c: str, xf: dict[str, Any], sc: float,
                     parts: np.ndarray) -> Optional[str]:
     """Why effect ``c`` cross-fitted on the holdouts' halves is not accepted, or None."""
-    if _no_gain(run, found, fl, sc):
+    if not beats_floors(run, fl, found.score, sc):
         return "no gain on the holdouts cross-fitted"
     # (As in the search: an effect that explains most of the error on the parts it was
     # fitted on may leave part of a holdout worse; another effect may dominate there.)
@@ -791,11 +792,12 @@ def _first_fold_refusal(run: Run, found: Found, fl: Floors, c: str,
                         first: tuple[dict[str, Any], list[np.ndarray]]) -> bool:
     """Effect ``c``'s fold on the first halves (``crossfit.fold``) already leaves no gain
     with the errors it gives the second halves alone: the cross-fitted RMSE of both folds
-    is at least what those errors give over every holdout's samples, so the effect is
-    refused whatever the second halves give; recorded as refused. Returns whether it was."""
+    is at least what those errors give over every holdout's samples (and the rule,
+    ``beats_floors``, fails for any RMSE above one it fails for), so the effect is refused
+    whatever the second halves give; recorded as refused. Returns whether it was."""
     fold, scored = first
     least = math.sqrt(sum(float(np.sum(np.square(e))) for e in scored) / sum(h.y.size for h in run.hos))
-    if not _no_gain(run, found, fl, least):
+    if beats_floors(run, fl, found.score, least):
         return False
     why = "no gain on the holdouts cross-fitted, from the first halves' fold alone"
     run.say(f"{c} fitted on the holdouts' first halves: holdout RMSE at least {least:.4g} (without: "
@@ -913,10 +915,8 @@ def holdout_delay_step(run: Run, found: Found, fl: Floors) -> None:
     added = ", ".join(f"{1e3 * f['added_s']:.3g} ms on {'+'.join(f['fit'])}" for f in xf["folds"])
     if xf["errors"] is None:
         # (Not scored: the folds' delays alone refuse it.)
-        short = min(f["added_s"] for f in xf["folds"]) < fl.scale.min_delay
-        early = "no delay on some holdouts" if short else "the holdouts disagree on the delay"
-        found.cross_fit["delay"]["refused"] = early
-        run.say(f"delay fitted on the holdouts (cross-fitted): {added}; refused ({early})")
+        found.cross_fit["delay"]["refused"] = "the holdouts disagree on the delay"
+        run.say(f"delay fitted on the holdouts (cross-fitted): {added}; refused (the holdouts disagree on the delay)")
         return
     e0 = run.holdout_errors(base)
     sc0, _ = run.parts_of([own_start(base, h, e, run.starts(base, h), run.trials.map)[0]
@@ -927,7 +927,7 @@ def holdout_delay_step(run: Run, found: Found, fl: Floors) -> None:
     run.say(f"delay fitted on the holdouts (cross-fitted): holdout RMSE {sc:.4g} (without: {sc0:.4g}; each holdout's "
             f"start with its own staircase); {added}")
     why = None
-    if g < run.min_shrink or sc0 - sc < 0.5 * fl.accept or sc_plain >= fl.hyst_alone:
+    if not passes(run, fl, sc0, sc) or sc_plain >= fl.hyst_alone:
         why = "no gain on the holdouts cross-fitted"
     elif ends_at_bound("delay", xf["state"].effects["delay"], run.fitter.ranges):
         why = "at its search bound: " + "; ".join(ends_at_bound("delay", xf["state"].effects["delay"],
@@ -1026,7 +1026,7 @@ def initial_state(run: Run, found: Found, fl: Floors) -> None:
         "state": cur, "rmse_after": sc, "rmse_current": sc0, "score": g, "round": len(found.accepted) + 1,
         "fitted_on": "each holdout's start, before its input swept the range",
         "params": {"extrema": est[first.name][0], "record_extrema": {h.name: est[h.name][0] for h in hos}}}
-    if g < run.min_shrink or sc0 - sc < 0.5 * fl.accept or sc >= fl.hyst_alone:
+    if not beats_floors(run, fl, sc0, sc):
         found.tried["initial_state"]["refused"] = "no gain on the holdouts"
     else:
         found.accepted.append("initial_state")
@@ -1069,7 +1069,7 @@ def session_offsets(run: Run, found: Found, fl: Floors) -> None:
     trend = "" if st is found.cur else ", instead of the drift's trend"
     run.say(f"an offset per holdout (sessions{trend}): holdout RMSE {sc:.4g} (without: {before:.4g}) on "
             f"{', '.join(offsets)}" + (f"; a gain on {', '.join(gains)}" if gains else ""))
-    if not (gain(before, sc) >= run.min_shrink and before - sc >= 0.5 * fl.accept and sc < fl.hyst_alone):
+    if not beats_floors(run, fl, before, sc):
         return
     if "drift" not in found.accepted or st is not found.cur:
         zero = {"gain_per_s": 0.0, "offset": 0.0, "offset_per_s": 0.0}
