@@ -93,14 +93,17 @@ def test_a_delay_is_fitted_jointly_with_the_starting_staircase():
         assert abs(joint / d - 1) < 0.01 and abs(joint - d) < abs(blind - d), (joint, blind, d)
 
 
-def _stage_records(seed, delay_s, fs=20e3, creep=None):
+def _stage_records(seed, delay_s, fs=20e3, creep=None, lowpass=None):
     """The project's simulator: a random hysteresis (then a creep element ``creep``:
-    (gain, time constant), on every record), a training record on a clean channel and two
-    holdouts (triangle, steps) on one delayed by ``delay_s``."""
+    (gain, time constant), and a low-pass ``lowpass``: (cutoff, order), on every record),
+    a training record on a clean channel and two holdouts (triangle, steps) on one delayed
+    by ``delay_s``."""
     rng = np.random.default_rng(seed)
     blocks = [hysteresis_block(bv.true_hysteresis(rng))]
     if creep is not None:
         blocks.append({"type": "creep", "gains": [creep[0]], "time_constants_s": [creep[1]]})
+    if lowpass is not None:
+        blocks.append({"type": "lowpass", "cutoff_hz": lowpass[0], "order": lowpass[1]})
     clean = Stage(blocks, sample_rate_hz=fs)
     delayed = Stage(blocks + [{"type": "delay", "delay_s": delay_s}], sample_rate_hz=fs)
     recs, t0 = [], 0.0
@@ -135,6 +138,38 @@ def test_real_creep_stays_next_to_a_holdout_only_delay_on_the_project_simulator(
     found = _found(rep)
     assert {"creep", "delay"} <= set(found), _why(rep)
     assert abs(found["delay"]["params"]["delay_s"] / d - 1) < 0.10, (found["delay"]["params"], d)
+
+
+def test_a_real_lowpass_stays_next_to_a_holdout_only_delay_on_the_project_simulator():
+    """A low-pass on every record (random cutoff and order) and a delay only the holdouts
+    carry, which hides the low-pass from the search's holdout score: both found (the
+    low-pass on the holdouts' halves, once the delay is in the chain), its cutoff within
+    half of the true one."""
+    rng = np.random.default_rng(2028)
+    d = float(rng.uniform(3e-4, 3e-3))
+    lp = (float(rng.uniform(300.0, 1200.0)), int(rng.integers(1, 3)))
+    recs = _stage_records(int(rng.integers(1 << 30)), d, lowpass=lp)
+    rep = diagnose(recs[0], recs[1:], progress=False)
+    found = _found(rep)
+    assert {"lowpass", "delay"} <= set(found), _why(rep)
+    assert abs(found["lowpass"]["params"]["cutoff_hz"] / lp[0] - 1) < 0.5, (found["lowpass"]["params"], lp)
+
+
+def test_a_lowpass_standing_in_for_a_holdout_only_delay_is_dropped_on_the_rig():
+    """A rig stage of the ``holdout_delay`` class whose search accepts a low-pass for part
+    of the lag only the holdouts carry (its share of the lag chosen on them): once the
+    delay is in the chain, the chain without the low-pass scores better and it is
+    dropped; the delay alone, within 10 % of the holdouts' channel lag."""
+    import rig
+
+    case = rig.make_case("holdout_delay", 7004)
+    truth = case["truth"]
+    rep = diagnose(*rig.records(case), progress=False)
+    found = _found(rep)
+    assert set(found) == {"delay"}, _why(rep)
+    assert "only the holdouts carry" in {e["name"]: e["refused"] for e in rep.effects}["lowpass"], _why(rep)
+    lag = truth["delay_s"] + truth["timing_s"]
+    assert abs(found["delay"]["params"]["delay_s"] / lag - 1) < 0.10, (found["delay"]["params"], lag)
 
 
 def test_a_holdout_only_delay_on_the_rig():
@@ -179,6 +214,32 @@ def test_the_shifted_errors_are_those_of_the_shifted_rows(samples, n, seed, cut)
     sl = (slice(None), slice(0, n // 2), slice(n // 2, None), slice(n // 3, n - 3))[cut]
     ref = np.sum((shifted(rows, samples)[:, sl] - y[sl]) ** 2, axis=1)
     np.testing.assert_allclose(shifted_sse(rows, y, samples, sl), ref, rtol=1e-10, atol=1e-10)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.one_of(st.floats(-0.2, 1.2), st.integers(0, 8).map(lambda k: k / 8)),
+       st.sampled_from([{}, {"vibration": {"frequency_hz": 300.0, "damping": 0.05},
+                             "creep": {"taus_s": [0.02], "amplitudes": [0.05]}}]))
+def test_the_profiles_run_only_the_starting_staircases_of_a_memory_of_their_own(seed, start, effects):
+    """``profiles`` leaves out the starting staircases the first sample wipes out or that
+    only repeat a shorter one (``initial.own_memory``): its distinct rows are those of
+    every staircase run (the brute force), in the same order, whatever the first sample
+    (on a staircase level, outside the model's range)."""
+    from preisach.diagnose.initial import predictor, staircases
+
+    rng = np.random.default_rng(seed)
+    hm = bv.true_hysteresis(rng, n_h=20)
+    lo, hi = hm.u_range
+    t = np.arange(600) / 5e3
+    u0 = lo + start * (hi - lo)
+    u = u0 + 0.3 * (hi - lo) * np.sin(2 * np.pi * 15 * t) * rng.uniform(-1.0, 1.0)
+    rec = Record("r", t, u, np.zeros_like(u), 2e-4)
+    stt = FitState(hm, dict(effects, delay={"delay_s": 1e-3}))
+    bare = FitState(hm, effects)
+    brute = np.array([predictor(bare, rec)(ex) for ex in [None] + staircases(bare)])
+    fast = profiles(stt, rec)
+    np.testing.assert_array_equal(distinct(fast), distinct(brute))
+    assert fast.shape[0] <= brute.shape[0]
 
 
 @given(st.integers(0, 2**31 - 1), st.integers(1, 12), st.integers(1, 6), st.floats(0.0, 30.0))

@@ -41,6 +41,7 @@ def test_every_candidate_has_one_registry_entry_with_ranges_and_a_search():
 
 @pytest.mark.parametrize("name, small, real", [
     ("delay", {"delay_s": 1e-4}, {"delay_s": 5e-4}),  # two samples at 10 kHz: 2e-4 s
+    ("delay", {"delay_s": 2e-4}, {"delay_s": 2.001e-4}),  # "longer than two samples"
     ("vibration", {"frequency_hz": 800.0, "damping": 0.3}, {"frequency_hz": 800.0, "damping": 0.02}),
     ("vibration", {"frequency_hz": 4500.0, "damping": 0.02}, {"frequency_hz": 3500.0, "damping": 0.02}),
     ("lowpass", {"cutoff_hz": 3500.0, "order": 1}, {"cutoff_hz": 2500.0, "order": 1}),

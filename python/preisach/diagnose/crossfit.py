@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from preisach.diagnose.effects import FitState, Record, _grid_then_parabola
-from preisach.diagnose.initial import Map, Start, estimate, own_start, predictor, staircases
+from preisach.diagnose.initial import Map, Start, estimate, own_memory, own_start, predictor, staircases
 from preisach.diagnose.ranges import Bound, Ranges, delay_grid, search_ranges
 from preisach.diagnose.registry import REGISTRY
 from preisach.diagnose.search import Effects, Fitter, Trials
@@ -54,11 +54,13 @@ def shifted(y: NDArray[np.float64], samples: float) -> NDArray[np.float64]:
 def profiles(st: FitState, rec: Record, run: Map = map) -> NDArray[np.float64]:
     """The chain's output on ``rec`` without its delay: from rest (the first row) and
     from each starting staircase (``initial.staircases``; the memory of unrecorded
-    history, which only the part before the input swept its range shows). ``run`` (a
-    ``map``) takes the rows."""
+    history, which only the part before the input swept its range shows) that leaves a
+    memory of its own at the first sample (``initial.own_memory``; the others would
+    repeat an earlier row). ``run`` (a ``map``) takes the rows."""
     e = {k: v for k, v in st.effects.items() if k != "delay"}
     bare = FitState(st.model, e, st.train_rmse)
-    return np.array(list(run(predictor(bare, rec), [None] + staircases(bare))))
+    starts = [ex for ex in staircases(bare) if own_memory(ex, float(rec.u[0]))]
+    return np.array(list(run(predictor(bare, rec), [None] + starts)))
 
 
 def distinct(rows: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -175,7 +177,7 @@ def consistent(folds: list[dict[str, Any]], min_delay: float) -> bool:
     """Every fold found a delay longer than ``min_delay``, within 25 % of each other (a
     channel's delay is the same on every record it reads)."""
     ds = [float(f["added_s"]) for f in folds]
-    return min(ds) >= min_delay and max(ds) <= 1.25 * min(ds)
+    return min(ds) > min_delay and max(ds) <= 1.25 * min(ds)
 
 
 # -- any effect, on halves of the holdouts ----------------------------------------------

@@ -82,6 +82,14 @@ def staircases(st: FitState, levels: int = 9) -> list[list[float]]:
             for M in grid[1:] for m in [None] + [float(x) for x in grid if x < M]]
 
 
+def own_memory(ex: list[float], u0: float) -> bool:
+    """Whether starting staircase ``ex`` (``[M]`` or ``[M, m]``) leaves a memory of its
+    own once the input has moved to the record's first sample ``u0``: rising to ``M`` or
+    beyond wipes the staircase out (the memory from rest), and falling to ``m`` or below
+    goes on with the fall from ``M`` (the memory after ``[M]``)."""
+    return u0 < ex[0] and (len(ex) == 1 or u0 > ex[1])
+
+
 def estimate(st: FitState, rec: Record, levels: int = 9, run: Map = map) -> Estimate:
     """The starting staircase of ``rec`` (``[M, m]``, ``[M]`` or none) that fits the
     part before the sweep best (``fitted_part``), on a grid of the model's range, then

@@ -55,7 +55,9 @@ class Effect:
     shrinks each holdout's error; a record's own error, the model's on its input, does
     not carry over), ``beats_delay`` (at the records' frequencies it acts as a lag, so
     its chain must beat the same chain with a delay in its place: the record's timing or
-    a real delay)."""
+    a real delay), ``acts_as_lag`` (it acts partly as a lag, so once a delay only the holdouts
+    carry is in the chain it must still earn its place without that lag:
+    ``steps.drop_standins``)."""
 
     name: str
     block: str
@@ -68,6 +70,7 @@ class Effect:
     agree: tuple[str, float] = ("", 0.0)
     across_records: bool = False
     beats_delay: bool = False
+    acts_as_lag: bool = False
 
     def ranges(self, ranges: Ranges) -> dict[str, Bound]:
         """This effect's search ranges (from the data)."""
@@ -82,7 +85,7 @@ class Effect:
 
 
 def _delay(p: Params, s: Scale) -> bool:
-    return bool(p["delay_s"] < s.min_delay)  # sub-sample timing, not a delay
+    return bool(p["delay_s"] <= s.min_delay)  # the sampling's own timing, not a delay
 
 
 def _vibration(p: Params, s: Scale) -> bool:
@@ -122,7 +125,7 @@ REGISTRY: dict[str, Effect] = {e.name: e for e in (
            agree=("delay_s", 0.25)),
     Effect("lowpass", "lowpass", ("cutoff_hz",), "Fitter.add: a grid of cutoffs of both orders keeping the "
            "chain's lag, then the other order", "a cutoff below 0.3 x the fit's rate", _lowpass,
-           agree=("cutoff_hz", 0.5)),
+           agree=("cutoff_hz", 0.5), acts_as_lag=True),
     Effect("vibration", "vibration", ("frequency_hz", "damping"), "Fitter.mode_band: the residual "
            "spectrum's peaks fitted in a band, judged on the profiled error",
            "damping at most 0.15 (more is a lag) and a frequency below 0.4 x the fit's rate", _vibration,
@@ -138,7 +141,7 @@ REGISTRY: dict[str, Effect] = {e.name: e for e in (
            across_records=True),
     Effect("rate", "rate", ("tau_s",), "Fitter.add: a grid of time constants, the gain solved with the masses",
            "a rate branch of 0.2 % of the output's span or more; it beats a delay in its place", _rate,
-           agree=("tau_s", 1.0), beats_delay=True),
+           agree=("tau_s", 1.0), beats_delay=True, acts_as_lag=True),
 )}
 
 #: The order the candidates' fits start in: the slowest first (a mode's fit is the

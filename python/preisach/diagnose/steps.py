@@ -883,7 +883,7 @@ def holdout_effects(run: Run, found: Found, fl: Floors) -> None:
     holdout_delay_step(run, found, fl)
     holdout_halves(run, found, fl)
     if any(k not in before for k in found.accepted):
-        drop_slow(run, found, fl)
+        drop_standins(run, found, fl, searched=before)
 
 
 def timing_chain(run: Run, cur: FitState) -> FitState:
@@ -941,18 +941,20 @@ def holdout_delay_step(run: Run, found: Found, fl: Floors) -> None:
         found.cross_fit["delay"]["refused"] = why
 
 
-def _without_slow(run: Run, found: Found, x: str) -> tuple[FitState, float, np.ndarray, Optional[dict[str, Any]]]:
-    """The chain without slow effect ``x``, its masses refitted on the training record
-    with the other effects (as a candidate's search fits them), a delay only the holdouts
-    carry cross-fitted again on it (as its step does); its state, score, parts and that
-    delay's cross-fit record (None without one)."""
-    eff = {k: dict(v) for k, v in found.cur.effects.items() if k != x}
+def _without(run: Run, found: Found, x: str) -> tuple[FitState, float, np.ndarray, Optional[dict[str, Any]]]:
+    """The chain without effect ``x`` (a low-pass's lag given to the delay:
+    ``lag.delay_equivalent``), its masses refitted on the training record with the other
+    effects (as a candidate's search fits them), a delay only the holdouts carry
+    cross-fitted again on it (as its step does); its state, score, parts and that delay's
+    cross-fit record (None without one)."""
+    eff = {k: dict(v) for k, v in found.cur.effects.items()}
     held = "delay" in found.accepted and found.tried.get("delay", {}).get("fitted_on") == "holdouts"
     if held:
         d0 = float(found.cross_fit["delay"]["base_delay_s"])
         eff.pop("delay")
         if d0 > 0:
             eff["delay"] = {"delay_s": d0}
+    eff = lag.delay_equivalent(eff) if x == "lowpass" else {k: v for k, v in eff.items() if k != x}
     with warnings.catch_warnings(), run.trials.search():
         warnings.simplefilter("ignore", PreisachWarning)
         st = run.fine.state(eff, n_h=found.cur.model.n_h)
@@ -968,19 +970,32 @@ def _without_slow(run: Run, found: Found, x: str) -> tuple[FitState, float, np.n
     return xf["state"], sc, parts, rec
 
 
-def drop_slow(run: Run, found: Found, fl: Floors, levels: bool = False) -> None:
-    """Backward elimination of the slow effects (creep, drift) once effects only the
-    holdouts carry are in the chain: a slow effect accepted in the search on its holdout
-    score may have stood in there for part of such an effect (creep's lag for a channel's
-    delay; with ``levels``, a creep far beyond the records for the records' own levels,
+def _standins(found: Found, levels: bool, searched: Optional[list[str]]) -> list[str]:
+    """The accepted effects ``drop_standins`` tests again (see there)."""
+    def tested(k: str) -> bool:
+        e = REGISTRY.get(k)
+        if e is None or k not in found.cur.effects or (searched is not None and k not in searched):
+            return False
+        return (e.slow and not (levels and k == "drift")) or (e.acts_as_lag and not levels)
+    return [k for k in found.accepted if tested(k)]
+
+
+def drop_standins(run: Run, found: Found, fl: Floors, levels: bool = False,
+                  searched: Optional[list[str]] = None) -> None:
+    """Backward elimination of the effects that may have stood in for one only the
+    holdouts carry, once such effects are in the chain: an effect accepted in the search
+    on its holdout score may have taken part of it there (creep's lag, or a low-pass's, for
+    a channel's delay: the effects ``slow`` or ``acts_as_lag`` in the registry; with ``levels``,
+    only a slow one: a creep far beyond the records for the records' own levels,
     ``session_offsets``, which are then fitted on the chain without it too, drift itself
     not re-tested). Each is kept only when it still meets the rule it was accepted by
-    against the chain without it (``_without_slow``): it shrinks that chain's holdout
-    RMSE by ``min_shrink`` (a quarter of it when it explains most of the training
-    error) and by more than half the floor; else it is dropped."""
-    for x in [k for k in found.accepted if k in REGISTRY and REGISTRY[k].slow and k in found.cur.effects
-              and not (levels and k == "drift")]:
-        st2, sc2, parts2, delay_fit = _without_slow(run, found, x)
+    against the chain without it (``_without``): it shrinks that chain's holdout RMSE by
+    ``min_shrink`` (a quarter of it when it explains most of the training error) and by
+    more than half the floor; else it is dropped. ``searched``: only these (the effects
+    the search accepted; one accepted on the holdouts' halves was judged against the chain
+    without it there)."""
+    for x in _standins(found, levels, searched):
+        st2, sc2, parts2, delay_fit = _without(run, found, x)
         if levels:
             offs, gains, es = sessions.offsets(run.holdout_errors(st2), [h.y for h in run.hos],
                                                [h.u for h in run.hos], [h.name for h in run.hos], fl.accept)
@@ -1084,7 +1099,7 @@ def session_offsets(run: Run, found: Found, fl: Floors) -> None:
     found.record_offsets = offsets
     found.record_gains = gains
     found.score = sc
-    drop_slow(run, found, fl, levels=True)
+    drop_standins(run, found, fl, levels=True)
 
 
 def rest_where(run: Run, found: Found, where: list[dict[str, Any]]) -> list[dict[str, Any]]:
