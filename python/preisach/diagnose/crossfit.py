@@ -148,16 +148,15 @@ def holdout_delay(st: FitState, hos: list[Record], errors: Errors, bound: Bound,
     start = start or (lambda s, r: estimate(s, r, run=run))
     outs = {h.name: distinct(profiles(st, h, run)) for h in hos}
     memo: Memo = {}
-    # Per fold: the parts fitted, the holdout scored and the samples of it scored; their names.
+    # Per fold: the parts fitted, the holdout scored, the samples of it scored, and their names.
     if len(hos) >= 2:
-        plan = [([(g, slice(None)) for g in hos if g is not h], i, slice(None)) for i, h in enumerate(hos)]
-        names = [([g.name for g in hos if g is not h], h.name) for h in hos]
+        plan = [([(g, slice(None)) for g in hos if g is not h], i, slice(None), [g.name for g in hos if g is not h],
+                 h.name) for i, h in enumerate(hos)]
     else:
         h, hv = hos[0], halves(hos[0])
-        plan = [([(h, hv[k])], 0, hv[1 - k]) for k in (0, 1)]
-        names = [([half_name(h, k)], half_name(h, 1 - k)) for k in (0, 1)]
+        plan = [([(h, hv[k])], 0, hv[1 - k], [half_name(h, k)], half_name(h, 1 - k)) for k in (0, 1)]
     folds: list[dict[str, Any]] = [{"fit": fit, "score": score, "added_s": _fit_delay(st, parts, bound, outs, memo)}
-                                   for (parts, _, _), (fit, score) in zip(plan, names)]
+                                   for parts, _, _, fit, score in plan]
     added = _fit_delay(st, [(h, slice(None)) for h in hos], bound, outs, memo)
     out: dict[str, Any] = {"folds": folds, "added_s": added, "state": _with_delay(st, added), "errors": None,
                            "plain": None}
@@ -165,7 +164,7 @@ def holdout_delay(st: FitState, hos: list[Record], errors: Errors, bound: Bound,
         return out
     out["errors"] = [np.empty(h.y.size) for h in hos]
     out["plain"] = [np.empty(h.y.size) for h in hos]
-    for (_, i, sl), f in zip(plan, folds):
+    for (_, i, sl, _, _), f in zip(plan, folds):
         sd = _with_delay(st, f["added_s"])
         e = errors(sd)[i]
         out["plain"][i][sl] = e[sl]

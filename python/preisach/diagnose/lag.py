@@ -16,7 +16,7 @@ from __future__ import annotations
 from typing import Any, Callable
 
 from preisach.diagnose.effects import FitState
-from preisach.diagnose.search import group_delay
+from preisach.diagnose.search import group_delay, less
 
 Effects = dict[str, dict[str, Any]]
 
@@ -24,10 +24,7 @@ Effects = dict[str, dict[str, Any]]
 def delay_equivalent(eff: Effects) -> Effects:
     """The chain with its low-pass replaced by a delay of the low-pass's group delay
     (added to the chain's delay)."""
-    e = {k: dict(v) for k, v in eff.items() if k != "lowpass"}
-    d0 = float(eff.get("delay", {}).get("delay_s", 0.0))
-    e["delay"] = {"delay_s": d0 + group_delay(eff["lowpass"])}
-    return e
+    return less(eff, "lowpass")
 
 
 def is_timing(score: Callable[[FitState], float], st: FitState, sc: float, min_shrink: float, floor: float,

@@ -200,6 +200,15 @@ def group_delay(p: dict[str, Any]) -> float:
     return (1.0 if int(p["order"]) == 1 else math.sqrt(2.0)) / wc
 
 
+def less(eff: Effects, name: str) -> Effects:
+    """The chain ``eff`` less effect ``name``; a low-pass's group delay (its lag at the
+    records' frequencies) goes to the delay."""
+    e = {k: dict(p) for k, p in eff.items() if k != name}
+    if name == "lowpass":
+        e["delay"] = {"delay_s": float(eff.get("delay", {}).get("delay_s", 0.0)) + group_delay(eff["lowpass"])}
+    return e
+
+
 def _key(eff: Effects) -> tuple[Any, ...]:
     out = []
     for k in sorted(eff):
@@ -360,18 +369,24 @@ class Fitter:
             post = np.ascontiguousarray(c if post is None else np.vstack([post, c]))
         return {"z": np.ascontiguousarray(z), "chain": chain, "w": w, "pre": pre, "post": post, "q": q}
 
+    def _cached(self, store: dict[tuple[Any, ...], Any], limit: int, key: tuple[Any, ...],
+                make: Callable[[], Any]) -> Any:
+        """``store[key]``, made by ``make`` when missing; the oldest entry goes when
+        ``store`` holds ``limit``."""
+        with self._lock:
+            if key in store:
+                return store[key]
+        got = make()
+        with self._lock:
+            if len(store) >= limit:
+                del store[next(iter(store))]
+            store[key] = got
+        return got
+
     def _kept(self, key: tuple[Any, ...], make: Callable[[], Optional[NDArray[np.float64]]]) -> Any:
         """A column of the fit made from a full-rate run, kept by ``key`` (the
         parameters it depends on, which a search over another scalar does not move)."""
-        with self._lock:
-            if key in self._columns:
-                return self._columns[key]
-        col = make()
-        with self._lock:
-            if len(self._columns) >= COLUMNS_KEPT:
-                self._columns.clear()
-            self._columns[key] = col
-        return col
+        return self._cached(self._columns, COLUMNS_KEPT, key, make)
 
     def _rate_column(self, eff: Effects) -> NDArray[np.float64]:
         """The rate branch of gain 1 on the training input, delayed like the chain and
@@ -428,19 +443,14 @@ class Fitter:
         coefficients refitted with them."""
         if n_h is not None and n_h != self.n_h:
             return self._other(n_h).state(eff)
-        k = (self.rest,) + _key(eff)
-        with self._lock:
-            st = self._states.get(k)
-        if st is None:
-            pb = self._problem(eff)
-            res = self._solve(pb, nnls=True)
+        def make() -> FitState:
+            res = self._solve(self._problem(eff), nnls=True)
             model = identified(PreisachModel._wrap(res["model"], "interpolated"), self._u)
             st = FitState(model, self._linear(eff, res["extra_nnls"]))
             st.train_rmse = rmse((self.predict(st) - self.y)[self.first:])
-            with self._lock:
-                if len(self._states) >= STATES_KEPT:
-                    del self._states[next(iter(self._states))]
-                self._states[k] = st
+            return st
+
+        st = self._cached(self._states, STATES_KEPT, (self.rest,) + _key(eff), make)
         return FitState(st.model, {n: dict(p) for n, p in st.effects.items()}, st.train_rmse)
 
     def _other(self, n_h: int) -> Fitter:
@@ -851,9 +861,7 @@ class Fitter:
 
     def without(self, eff: Effects, name: str) -> Effects:
         """The chain less ``name``, the rest polished (backward elimination)."""
-        e = {k: dict(p) for k, p in eff.items() if k != name}
-        if name == "lowpass" and "delay" in e:
-            e["delay"] = {"delay_s": e["delay"]["delay_s"] + group_delay(eff["lowpass"])}
+        e = less(eff, name)
         if not any(k in e for k in DYNAMIC) and "delay" in e and e["delay"]["delay_s"] <= 0:
             del e["delay"]
         e, _ = self.polish(e, list(e), sweeps=1)

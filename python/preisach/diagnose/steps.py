@@ -31,7 +31,7 @@ from preisach.diagnose.initial import Starts, own_start
 from preisach.diagnose.ranges import Ranges, ends_at_bound
 from preisach.diagnose.records import RecordLike, check_distinct, holdout_list, load_record, reversals
 from preisach.diagnose.registry import OWN_STEPS, REGISTRY, SLOW_FIRST, Scale, trivial
-from preisach.diagnose.search import Effects, Fitter, Trials, calibrate_slow
+from preisach.diagnose.search import Effects, Fitter, Trials, calibrate_slow, less
 from preisach.diagnose.where import localize, noise_floor, repeatability_floor, signatures
 from preisach.model import PreisachModel, PreisachWarning
 
@@ -943,7 +943,7 @@ def holdout_delay_step(run: Run, found: Found, fl: Floors) -> None:
 
 def _without(run: Run, found: Found, x: str) -> tuple[FitState, float, np.ndarray, Optional[dict[str, Any]]]:
     """The chain without effect ``x`` (a low-pass's lag given to the delay:
-    ``lag.delay_equivalent``), its masses refitted on the training record with the other
+    ``search.less``), its masses refitted on the training record with the other
     effects (as a candidate's search fits them), a delay only the holdouts carry
     cross-fitted again on it (as its step does); its state, score, parts and that delay's
     cross-fit record (None without one)."""
@@ -954,7 +954,7 @@ def _without(run: Run, found: Found, x: str) -> tuple[FitState, float, np.ndarra
         eff.pop("delay")
         if d0 > 0:
             eff["delay"] = {"delay_s": d0}
-    eff = lag.delay_equivalent(eff) if x == "lowpass" else {k: v for k, v in eff.items() if k != x}
+    eff = less(eff, x)
     with warnings.catch_warnings(), run.trials.search():
         warnings.simplefilter("ignore", PreisachWarning)
         st = run.fine.state(eff, n_h=found.cur.model.n_h)
