@@ -258,6 +258,39 @@ def test_sessions_sharing_a_projection_give_what_each_alone_gives():
         _preisach.Behind(u, N_H, RANGE, tie=-1.0)
 
 
+def test_a_pooled_session_fits_as_a_new_one_and_each_problem_is_built_once(monkeypatch):
+    """The run's pool (``preisach.diagnose.pool``) builds a problem (input content, grid,
+    window, smoothness weight) once and hands out copies: a copy fits bit for bit as a
+    session built anew, whatever another copy solved before; another window or input is
+    another problem; the oldest problem goes when the pool is full."""
+    from preisach.diagnose.pool import Sessions
+
+    built = []
+    real = _preisach.Behind
+
+    def counting(u, n_h, u_range, stride=1, tie=0.0):
+        built.append((n_h, stride))
+        return real(u, n_h, u_range, stride, tie=tie)
+    monkeypatch.setattr(_preisach, "Behind", counting)
+    t, u = _input(seed=5)
+    y = np.sin(5 * u) + 0.1 * t
+    yb = np.ascontiguousarray(y[: u.size // 4 * 4].reshape(-1, 4).mean(axis=1))
+    eff = {"vibration": {"frequency_hz": 300.0, "damping": 0.05}}
+    pool = Sessions(kept=2)
+    first = pool.session(u, N_H, RANGE, 4, TIE)
+    first.solve(yb[::-1].copy(), 4 * DT, _blocks(eff), tol=1e-10)  # a warm start of its own
+    second = pool.session(u.copy(), N_H, RANGE, 4, TIE)  # the same content
+    assert built == [(N_H, 4)]
+    got = second.solve(yb, 4 * DT, _blocks(eff), tol=1e-10, nnls=True)
+    want = real(u, N_H, RANGE, 4, tie=TIE).solve(yb, 4 * DT, _blocks(eff), tol=1e-10, nnls=True)
+    assert (got["rmse"], got["iterations"], got["extra"]) == (want["rmse"], want["iterations"], want["extra"])
+    np.testing.assert_array_equal(got["model"].weights(), want["model"].weights())
+    pool.session(u, N_H, RANGE, 2, TIE)  # another window
+    pool.session(u[::-1].copy(), N_H, RANGE, 4, TIE)  # another input: the first problem goes
+    pool.session(u, N_H, RANGE, 4, TIE)
+    assert built == [(N_H, 4), (N_H, 2), (N_H, 4), (N_H, 4)]
+
+
 def test_bad_arguments_are_named():
     t, u = _input(n=500)
     b = _preisach.Behind(u, N_H, RANGE)

@@ -200,11 +200,14 @@ def test_ctrl_c_in_the_candidate_fits_starts_nothing_new(tmp_path, monkeypatch):
         """A fit session that counts its solves, and sends SIGINT to the main thread at
         the 40th solve of the candidate round (a Ctrl-C)."""
 
-        def __init__(self, *args: object, **kw: object) -> None:
-            self.session = real(*args, **kw)
+        def __init__(self, *args: object, session: object = None, **kw: object) -> None:
+            self.session = session if session is not None else real(*args, **kw)
 
         def share(self, other: "Counting") -> None:
             self.session.share(other.session)
+
+        def fork(self) -> "Counting":
+            return Counting(session=self.session.fork())
 
         def solve(self, *args: object, **kw: object) -> object:
             with lock:

@@ -306,3 +306,33 @@ fn adjoint_is_the_transpose_of_the_record_pass() {
         }
     }
 }
+
+#[test]
+fn a_forked_session_solves_as_a_new_one_bit_for_bit() {
+    // The oracle: a session built anew on the same input. The fork is taken from a
+    // session that has solved (its warm start and delay set): the fork starts cold, as a
+    // new session does, and the session it came from keeps its own state.
+    use preisach_core::identify::filtered::{Behind, Terms};
+    let mut rng = Rng::new(31);
+    let (n_h, dt) = (6, 1e-4);
+    let u = random_input(&mut rng, 3000);
+    for stride in [1, 3] {
+        let mut first = Behind::new(&u, n_h, (-1.0, 2.0), stride).unwrap();
+        let m = first.n_samples();
+        let z1: Vec<f64> = (0..m).map(|_| rng.range(-1.0, 1.0)).collect();
+        let z2: Vec<f64> = (0..m).map(|_| rng.range(-1.0, 1.0)).collect();
+        let blocks = [mode(700.0, 0.05)];
+        let delayed = Terms { delay: 2.5, ..Terms::default() };
+        let before = first.solve(&z1, &mut cascade(&blocks, dt), &delayed, 1e-9, 40, true).unwrap();
+        let mut fork = first.fork().unwrap();
+        let mut new = Behind::new(&u, n_h, (-1.0, 2.0), stride).unwrap();
+        let terms = Terms::default();
+        let a = fork.solve(&z2, &mut cascade(&blocks, dt), &terms, 1e-9, 40, true).unwrap();
+        let b = new.solve(&z2, &mut cascade(&blocks, dt), &terms, 1e-9, 40, true).unwrap();
+        assert_eq!((a.x, a.iterations, a.rmse.to_bits()), (b.x, b.iterations, b.rmse.to_bits()));
+        // The first session warm-starts from its own last solve, not the fork's.
+        let again = first.solve(&z1, &mut cascade(&blocks, dt), &delayed, 1e-9, 40, true).unwrap();
+        assert!(again.iterations < before.iterations, "{} vs {}", again.iterations, before.iterations);
+        assert!((again.rmse - before.rmse).abs() <= 1e-6 * before.rmse, "{} vs {}", again.rmse, before.rmse);
+    }
+}

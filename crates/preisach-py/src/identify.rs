@@ -243,6 +243,17 @@ impl Behind {
         })
     }
 
+    /// A session of the same problem for another thread, as a new session would be but
+    /// without the rows and the preconditioner's Gram matrix built again (the rows and
+    /// the masses' projection shared); it starts cold.
+    fn fork(&self, py: Python<'_>) -> PyResult<Behind> {
+        guard(|| {
+            let b = py.detach(|| self.inner.lock().unwrap_or_else(|e| e.into_inner()).fork()).map_err(to_py)?;
+            let handle = Mutex::new(self.handle.lock().unwrap_or_else(|e| e.into_inner()).clone());
+            Ok(Behind { inner: Mutex::new(b), handle })
+        })
+    }
+
     /// Number of output samples (windows of ``stride`` input samples).
     #[getter]
     fn n_out(&self) -> usize {

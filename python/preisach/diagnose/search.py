@@ -40,6 +40,7 @@ from preisach.diagnose.effects import (
     rmse,
 )
 from preisach.diagnose.identified import identified
+from preisach.diagnose.pool import Sessions
 from preisach.diagnose.ranges import CREEP_AMP_MAX, CREEP_TAU_MIN, Ranges, delay_grid, search_ranges
 from preisach.diagnose.rest import fast_blocks, start_mode, transient
 from preisach.model import PreisachModel
@@ -131,6 +132,9 @@ class Trials:
         self._searches = 0
         self._lock = threading.Lock()
         self._cancelled = threading.Event()
+        #: The run's fit sessions, built once per problem and copied for each fitter's
+        #: threads (``preisach.diagnose.pool``).
+        self.sessions = Sessions()
 
     @contextmanager
     def search(self) -> Iterator[None]:
@@ -241,7 +245,6 @@ class Fitter:
                  shared: Optional[Fitter] = None, start: int = 0) -> None:
         from preisach import _preisach
 
-        self._behind = _preisach.Behind
         self._tie = _preisach.PROJECTION_TIE
         #: A session per grid of the fitters sharing this record and range: each new
         #: session shares its masses' projection, built once for them all.
@@ -328,8 +331,8 @@ class Fitter:
     def _session(self) -> Any:
         """This thread's fit session (a session serves one thread at a time, and
         warm-starts from its previous solve: the neighbouring trial of the same search).
-        A session whose thread has ended (a round's tasks) is taken over: building one
-        costs more than a solve (a noisy input's rows)."""
+        A session whose thread has ended (a round's tasks) is taken over; a new one is a
+        copy from the run's pool (``preisach.diagnose.pool``)."""
         me = threading.get_ident()
         with self._lock:
             sess = self._sessions.get(me)
@@ -339,7 +342,7 @@ class Fitter:
                 if orphan is not None:
                     sess = self._sessions[me] = self._sessions.pop(orphan)
         if sess is None:
-            sess = self._behind(self._u, self.n_h, self.u_range, self.stride, tie=self._tie)
+            sess = self.trials.sessions.session(self._u, self.n_h, self.u_range, self.stride, self._tie)
             with self._lock:
                 self._sessions[me] = sess
                 sess.share(self._projections.setdefault(self.n_h, sess))

@@ -208,14 +208,17 @@ fn push_pair_row(a: &[(u32, f64)], b: &[(u32, f64)], out: &mut Pairs) {
 /// blocks, so a chain fitted to the averaged record is the chain of the full-rate one,
 /// and an averaged row keeps where in the window a step of the input happened (point
 /// decimation moves it to a sample and biases every timing the dynamics carry).
+/// The groups and each sample's group are the same for every session on the input
+/// (shared: [`Behind::fork`]); the windows' mixtures depend on the delay of each solve.
+#[derive(Clone)]
 struct SampleRows {
     n_q: usize,
-    group: Vec<u32>,
-    lam: Vec<f64>,
+    group: Arc<Vec<u32>>,
+    lam: Arc<Vec<f64>>,
     /// Group g's rows (r_a, r_b) on the union of their Everett variables (row g), and
     /// the same by variable (row i: the groups that see variable i).
-    rows: Pairs,
-    rows_t: Pairs,
+    rows: Arc<Pairs>,
+    rows_t: Arc<Pairs>,
     /// Output samples (averaged windows) as mixtures of groups: row k holds (group,
     /// weights of r_a and r_b); and the same by group (row g: (output sample, weights)).
     mix: Pairs,
@@ -241,20 +244,8 @@ impl SampleRows {
         let mut seen: HashMap<Vec<u64>, u32> = HashMap::new();
         let mut key_buf: Vec<u64> = Vec::with_capacity(n_h + 3);
         let (mut r1, mut r2, mut ra, mut rb) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-        let mut sr = SampleRows {
-            n_q: grid.n_q(),
-            group: Vec::with_capacity(u.len()),
-            lam: Vec::with_capacity(u.len()),
-            rows: Pairs::new(),
-            rows_t: Pairs::new(),
-            mix: Pairs::new(),
-            mix_t: Pairs::new(),
-            direct: Sparse::new(),
-            direct_t: Sparse::new(),
-            stride: stride.max(1),
-            delay: f64::NAN,
-            vab: Vec::new(),
-        };
+        let (mut group, mut lam_of) = (Vec::with_capacity(u.len()), Vec::with_capacity(u.len()));
+        let mut rows = Pairs::new();
         let mut prev_p = f64::NAN;
         let (mut g, mut lam) = (0u32, 0.0);
         for &x in u {
@@ -270,24 +261,38 @@ impl SampleRows {
                 g = match seen.get(&key_buf) {
                     Some(&k) => k,
                     None => {
-                        let k = sr.rows.n_rows() as u32;
+                        let k = rows.n_rows() as u32;
                         seen.insert(key_buf.clone(), k);
                         // Affine in λ on the cell: evaluate inside and extrapolate.
                         emit_row(mem.turns(), cell as f64 + 1.0 / 3.0, n_h, &mut r1);
                         emit_row(mem.turns(), cell as f64 + 2.0 / 3.0, n_h, &mut r2);
                         combine(&r1, 2.0, &r2, -1.0, &mut ra);
                         combine(&r2, 2.0, &r1, -1.0, &mut rb);
-                        push_pair_row(&ra, &rb, &mut sr.rows);
+                        push_pair_row(&ra, &rb, &mut rows);
                         k
                     }
                 };
             }
-            sr.group.push(g);
-            sr.lam.push(lam);
+            group.push(g);
+            lam_of.push(lam);
         }
-        let n_g = sr.rows.n_rows();
-        sr.rows.transpose(sr.n_q, &mut sr.rows_t);
-        sr.vab = vec![[0.0; 2]; n_g];
+        let mut rows_t = Pairs::new();
+        rows.transpose(grid.n_q(), &mut rows_t);
+        let n_g = rows.n_rows();
+        let mut sr = SampleRows {
+            n_q: grid.n_q(),
+            group: Arc::new(group),
+            lam: Arc::new(lam_of),
+            rows: Arc::new(rows),
+            rows_t: Arc::new(rows_t),
+            mix: Pairs::new(),
+            mix_t: Pairs::new(),
+            direct: Sparse::new(),
+            direct_t: Sparse::new(),
+            stride: stride.max(1),
+            delay: f64::NAN,
+            vab: vec![[0.0; 2]; n_g],
+        };
         sr.set_delay(0.0);
         sr
     }
@@ -432,7 +437,7 @@ impl SampleRows {
     fn forward_fine(&mut self, x: &[f64], h: &mut [f64]) {
         self.group_values(x);
         let c = x[self.n_q];
-        for ((o, &g), &l) in h.iter_mut().zip(&self.group).zip(&self.lam) {
+        for ((o, &g), &l) in h.iter_mut().zip(self.group.iter()).zip(self.lam.iter()) {
             let [a, b] = self.vab[g as usize];
             *o = (1.0 - l) * a + l * b + c;
         }
@@ -527,6 +532,8 @@ impl SampleRows {
 struct Precond {
     fact: QDLDLFactorisation<f64>,
     dead: Vec<usize>,
+    /// The factored matrix (upper triangle, ridge added), for [`Precond::refactored`].
+    mat: CscMatrix<f64>,
 }
 
 impl Precond {
@@ -538,14 +545,23 @@ impl Precond {
         for c in 0..dim {
             val[colptr[c + 1] - 1] += 1e-10 * dmax;
         }
-        let mat = CscMatrix::new(dim, dim, colptr, rowval, val);
+        Self::factored(CscMatrix::new(dim, dim, colptr, rowval, val), dead)
+    }
+
+    fn factored(mat: CscMatrix<f64>, dead: Vec<usize>) -> Result<Self> {
         let settings = QDLDLSettingsBuilder::default()
-            .Dsigns(vec![1i8; dim])
+            .Dsigns(vec![1i8; mat.n])
             .build()
             .map_err(|e| PreisachError::Solver(format!("qdldl settings: {e}")))?;
         let fact = QDLDLFactorisation::new(&mat, Some(settings))
             .map_err(|e| PreisachError::Solver(format!("qdldl: {e:?}")))?;
-        Ok(Precond { fact, dead })
+        Ok(Precond { fact, dead, mat })
+    }
+
+    /// The same preconditioner with a workspace of its own (the kept matrix factored
+    /// again: the Gram matrix's products over every sample are not summed again).
+    fn refactored(&self) -> Result<Self> {
+        Self::factored(self.mat.clone(), self.dead.clone())
     }
 
     fn solve(&mut self, b: &[f64], x: &mut [f64]) {
@@ -634,6 +650,14 @@ impl Behind {
         let pre = Precond::new(dim, trip)?;
         let input = ProjectionHandle { grid, u: Arc::new(u.to_vec()), tie: 0.0, slot: Arc::default() };
         Ok(Behind { rows, pre, last: None, input })
+    }
+
+    /// A session of the same problem for another thread: the staircase groups and rows
+    /// shared, the windows' mixtures and the preconditioner's factorization its own, a
+    /// cold start, the projection shared. It solves bit for bit as a session from
+    /// [`Behind::new`] does, without the rows and Gram matrix built again.
+    pub fn fork(&self) -> Result<Self> {
+        Ok(Behind { rows: self.rows.clone(), pre: self.pre.refactored()?, last: None, input: self.input.clone() })
     }
 
     /// The smoothness weight of the masses' projection ([`Projection::new`]; 0 by
