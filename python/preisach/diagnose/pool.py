@@ -7,7 +7,9 @@ rows of every sample and the Gram matrix of the preconditioner: on a noisy input
 per sample and most of a second of work. The pool builds each problem (input, grid,
 window, smoothness weight) once, as a template that never solves, and hands out copies
 (``Behind.fork``: the same rows, a preconditioner of its own, a cold start), so a copy
-fits exactly as a session built anew would.
+fits exactly as a session built anew would. The templates of one input and grid at other
+windows share the masses' projection (``Behind.share``): it depends on the input's
+samples only, and is built once, by the first projection of any of their copies.
 """
 from __future__ import annotations
 
@@ -39,7 +41,8 @@ class Sessions:
         """A new session of the problem (``u`` C-contiguous float64)."""
         from preisach import _preisach
 
-        key = (hashlib.blake2b(u.data, digest_size=16).digest(), u.size, n_h, u_range, stride, tie)
+        problem = (hashlib.blake2b(u.data, digest_size=16).digest(), u.size, n_h, u_range, tie)
+        key = (problem, stride)
         with self._lock:
             building = self._building.setdefault(key, threading.Lock())
         with building:
@@ -48,6 +51,9 @@ class Sessions:
             if template is None:
                 template = _preisach.Behind(u, n_h, u_range, stride, tie=tie)
                 with self._lock:
+                    peer = next((t for (p, _), t in self._templates.items() if p == problem), None)
+                    if peer is not None:
+                        template.share(peer)
                     if len(self._templates) >= self.kept:
                         old = next(iter(self._templates))
                         del self._templates[old]

@@ -234,21 +234,19 @@ class Fitter:
     ``Behind``: averaging commutes with the dynamics and keeps the timing of steps).
     ``tol``: the conjugate gradients stop when two steps in a row lower the training error
     by less than this fraction of it (3e-5: along a mode's frequency the profiled error
-    rises the same as at 1e-5 to within 2 %, at 13 % fewer iterations). ``shared``: a
-    fitter of the same record and range (another stride): the masses' projections of
-    both are built once per grid. ``start``: the fit's error counts from this sample of
-    the record on; the samples before it only set the hysteresis memory and the dynamics'
-    state there (a later part of a record does not start at rest)."""
+    rises the same as at 1e-5 to within 2 %, at 13 % fewer iterations). Its fit sessions
+    come from the run's pool (``trials.sessions``: each problem built once, the masses'
+    projection shared by every window of an input and grid). ``start``: the fit's error
+    counts from this sample of the record on; the samples before it only set the
+    hysteresis memory and the dynamics' state there (a later part of a record does not
+    start at rest)."""
 
     def __init__(self, rec: Record, n_h: int, u_range: tuple[float, float], stride: int = 1,
                  tol: float = 3e-5, trials: Optional[Trials] = None, ranges: Optional[Ranges] = None,
-                 shared: Optional[Fitter] = None, start: int = 0) -> None:
+                 start: int = 0) -> None:
         from preisach import _preisach
 
         self._tie = _preisach.PROJECTION_TIE
-        #: A session per grid of the fitters sharing this record and range: each new
-        #: session shares its masses' projection, built once for them all.
-        self._projections: dict[int, Any] = shared._projections if shared is not None else {}
         self.rec = rec
         self.stride = max(1, int(stride))
         self.n_h = n_h
@@ -345,7 +343,6 @@ class Fitter:
             sess = self.trials.sessions.session(self._u, self.n_h, self.u_range, self.stride, self._tie)
             with self._lock:
                 self._sessions[me] = sess
-                sess.share(self._projections.setdefault(self.n_h, sess))
         return sess
 
     def _solve(self, pb: dict[str, Any], nnls: bool = False) -> dict[str, Any]:
@@ -463,7 +460,7 @@ class Fitter:
             f = self._others.get(n_h)
             if f is None:
                 f = self._others[n_h] = Fitter(self.rec, n_h, self.u_range, self.stride, self.tol, self.trials,
-                                               self.ranges, shared=self, start=self.start)
+                                               self.ranges, start=self.start)
         f.rest = self.rest
         return f
 

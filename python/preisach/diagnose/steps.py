@@ -290,10 +290,10 @@ def make_fitters(tr: Record, n_h: int, fit_rate_hz: float, search_rate_hz: float
     stride = max(1, int(round(1.0 / (tr.dt * fit_rate_hz))))
     sstride = max(stride, int(round(1.0 / (tr.dt * min(search_rate_hz, fit_rate_hz)))))
     fitter = Fitter(tr, n_h, rng, sstride, trials=trials)
-    fine = Fitter(tr, n_h, rng, stride, trials=trials, shared=fitter) if stride != sstride else fitter
+    fine = Fitter(tr, n_h, rng, stride, trials=trials) if stride != sstride else fitter
     if tr.u.size // (4 * sstride) >= 4000:
         # The slow effects' own searches on windows 4x longer (about 3 kHz).
-        fitter.slow = Fitter(tr, n_h, rng, 4 * sstride, trials=trials, shared=fitter)
+        fitter.slow = Fitter(tr, n_h, rng, 4 * sstride, trials=trials)
     return fitter, fine, stride, sstride
 
 

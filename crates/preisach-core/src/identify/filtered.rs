@@ -532,8 +532,9 @@ impl SampleRows {
 struct Precond {
     fact: QDLDLFactorisation<f64>,
     dead: Vec<usize>,
-    /// The factored matrix (upper triangle, ridge added), for [`Precond::refactored`].
-    mat: CscMatrix<f64>,
+    /// The factored matrix (upper triangle, ridge added), for [`Precond::refactored`]
+    /// (shared by the copies).
+    mat: Arc<CscMatrix<f64>>,
 }
 
 impl Precond {
@@ -545,10 +546,10 @@ impl Precond {
         for c in 0..dim {
             val[colptr[c + 1] - 1] += 1e-10 * dmax;
         }
-        Self::factored(CscMatrix::new(dim, dim, colptr, rowval, val), dead)
+        Self::factored(Arc::new(CscMatrix::new(dim, dim, colptr, rowval, val)), dead)
     }
 
-    fn factored(mat: CscMatrix<f64>, dead: Vec<usize>) -> Result<Self> {
+    fn factored(mat: Arc<CscMatrix<f64>>, dead: Vec<usize>) -> Result<Self> {
         let settings = QDLDLSettingsBuilder::default()
             .Dsigns(vec![1i8; mat.n])
             .build()
@@ -561,7 +562,7 @@ impl Precond {
     /// The same preconditioner with a workspace of its own (the kept matrix factored
     /// again: the Gram matrix's products over every sample are not summed again).
     fn refactored(&self) -> Result<Self> {
-        Self::factored(self.mat.clone(), self.dead.clone())
+        Self::factored(Arc::clone(&self.mat), self.dead.clone())
     }
 
     fn solve(&mut self, b: &[f64], x: &mut [f64]) {
