@@ -252,7 +252,7 @@ def test_sessions_sharing_a_projection_give_what_each_alone_gives():
     for other in (_preisach.Behind(u[::-1].copy(), N_H, RANGE, tie=TIE),  # another input
                   _preisach.Behind(u, N_H + 1, RANGE, tie=TIE),  # another grid
                   _preisach.Behind(u, N_H, RANGE)):  # the plain projection
-        with pytest.raises(ValueError, match="share: another input, grid or smoothness weight"):
+        with pytest.raises(ValueError, match="share: another input, start, grid or smoothness weight"):
             other.share(a)
     with pytest.raises(ValueError, match="tie: must be >= 0"):
         _preisach.Behind(u, N_H, RANGE, tie=-1.0)
@@ -260,17 +260,18 @@ def test_sessions_sharing_a_projection_give_what_each_alone_gives():
 
 def test_a_pooled_session_fits_as_a_new_one_and_each_problem_is_built_once(monkeypatch):
     """The run's pool (``preisach.diagnose.pool``) builds a problem (input content, grid,
-    window, smoothness weight) once and hands out copies: a copy fits bit for bit as a
-    session built anew, whatever another copy solved before; another window or input is
-    another problem; the oldest problem goes when the pool is full."""
+    window, smoothness weight, memory at the start) once and hands out copies: a copy
+    fits bit for bit as a session built anew, whatever another copy solved before;
+    another window, input or start is another problem; the oldest problem goes when the
+    pool is full."""
     from preisach.diagnose.pool import Sessions
 
     built = []
     real = _preisach.Behind
 
-    def counting(u, n_h, u_range, stride=1, tie=0.0):
+    def counting(u, n_h, u_range, stride=1, tie=0.0, initial_extrema=None):
         built.append((n_h, stride))
-        return real(u, n_h, u_range, stride, tie=tie)
+        return real(u, n_h, u_range, stride, tie=tie, initial_extrema=initial_extrema)
     monkeypatch.setattr(_preisach, "Behind", counting)
     t, u = _input(seed=5)
     y = np.sin(5 * u) + 0.1 * t
@@ -289,6 +290,13 @@ def test_a_pooled_session_fits_as_a_new_one_and_each_problem_is_built_once(monke
     pool.session(u[::-1].copy(), N_H, RANGE, 4, TIE)  # another input: the first problem goes
     pool.session(u, N_H, RANGE, 4, TIE)
     assert built == [(N_H, 4), (N_H, 2), (N_H, 4), (N_H, 4)]
+    after = pool.session(u, N_H, RANGE, 4, TIE, (0.9, 0.1))  # another start
+    assert built[-1] == (N_H, 4) and len(built) == 5
+    got = after.solve(yb, 4 * DT, _blocks(eff), tol=1e-10, nnls=True)
+    want = real(u, N_H, RANGE, 4, tie=TIE, initial_extrema=[0.9, 0.1]).solve(yb, 4 * DT, _blocks(eff), tol=1e-10,
+                                                                            nnls=True)
+    assert got["rmse_nnls"] == want["rmse_nnls"] and got["rmse_nnls"] != second.solve(
+        yb, 4 * DT, _blocks(eff), tol=1e-10, nnls=True)["rmse_nnls"]
 
 
 def test_bad_arguments_are_named():
@@ -304,6 +312,10 @@ def test_bad_arguments_are_named():
         b.solve(u, DT, _blocks({}), weights=-np.ones(u.size))
     with pytest.raises(ValueError, match="stride"):
         _preisach.Behind(u, N_H, RANGE, 0)
+    with pytest.raises(ValueError, match="initial_extrema: must be finite"):
+        _preisach.Behind(u, N_H, RANGE, initial_extrema=[0.5, float("nan")])
+    with pytest.raises(ValueError, match="share: another input, start"):
+        _preisach.Behind(u, N_H, RANGE, initial_extrema=[0.5]).share(b)
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
 """Type stubs of the compiled module `preisach._preisach` (checked by mypy.stubtest)."""
-from typing import Any, Optional
+from typing import Any, Optional, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -71,6 +71,7 @@ class Behind:
         u_range: tuple[float, float],
         stride: int = 1,
         tie: float = 0.0,
+        initial_extrema: Optional[Sequence[float]] = None,
     ) -> Behind: ...
     @property
     def n_out(self) -> int: ...

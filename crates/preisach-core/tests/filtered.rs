@@ -336,3 +336,97 @@ fn a_forked_session_solves_as_a_new_one_bit_for_bit() {
         assert!((again.rmse - before.rmse).abs() <= 1e-6 * before.rmse, "{} vs {}", again.rmse, before.rmse);
     }
 }
+
+#[test]
+fn a_session_after_a_history_fits_the_chain_started_there() {
+    // The oracle: the model's own memory run through the history's extrema, then the
+    // record (an increasing sine from mid-range, as an identification record starts),
+    // behind a mode. A session started after the same extrema recovers that output; one
+    // started from negative saturation cannot; a stride and several histories.
+    use preisach_core::identify::filtered::{Behind, Terms};
+    let mut rng = Rng::new(41);
+    let (n_h, dt, n) = (6, 1e-4, 4000);
+    let u: Vec<f64> = (0..n)
+        .map(|k| {
+            let t = k as f64 / n as f64;
+            0.5 + 1.5 * t * (std::f64::consts::TAU * 12.0 * t).sin()
+        })
+        .collect();
+    let blocks = [mode(300.0, 0.05)];
+    for (case, stride) in [1, 2, 1].into_iter().enumerate() {
+        let truth = random_model(&mut rng, n_h);
+        let extrema = [rng.range(1.0, 1.9), rng.range(-0.9, 0.0), rng.range(0.6, 0.9)];
+        let mut mem = truth.interp_memory();
+        let mut h = vec![0.0; n];
+        truth.run_interpolated(&mut mem, &extrema, &mut vec![0.0; extrema.len()]);
+        truth.run_interpolated(&mut mem, &u, &mut h);
+        // (The fit's forward map: the windows' means, then the blocks at their rate.)
+        let hw: Vec<f64> = h.chunks(stride).map(|c| c.iter().sum::<f64>() / c.len() as f64).collect();
+        let dts = dt * stride as f64;
+        let mut z = vec![0.0; hw.len()];
+        cascade(&blocks, dts).apply(&hw, &mut z);
+        let span = z.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+        let terms = Terms::default();
+        let fit_rmse = |b: &mut Behind| {
+            let sol = b.solve(&z, &mut cascade(&blocks, dts), &terms, 1e-12, 300, false).unwrap();
+            b.project(&sol, &z, &mut cascade(&blocks, dts), &terms).unwrap().2
+        };
+        let after = fit_rmse(&mut Behind::after(&extrema, &u, n_h, (-1.0, 2.0), stride).unwrap());
+        let plain = fit_rmse(&mut Behind::new(&u, n_h, (-1.0, 2.0), stride).unwrap());
+        assert!(after < 1e-6 * span, "case {case}: rmse {after} (span {span})");
+        assert!(plain > 1e-3 * span, "case {case}: the history left no trace: rmse {plain}");
+    }
+    let bad = Behind::after(&[f64::NAN], &u, n_h, (-1.0, 2.0), 1).err().unwrap().to_string();
+    assert!(bad.contains("initial_extrema"), "{bad}");
+}
+
+#[test]
+fn a_projection_after_a_history_is_the_nnls_of_the_record_started_there() {
+    // The oracle: non-negative least squares on the dense columns of every cell's unit
+    // mass (and a free offset), each column the model's own output from the memory after
+    // the history's extrema. With no dynamics and no windows the projection is that fit
+    // (noise makes the masses' bound active).
+    use preisach_core::identify::filtered::{Behind, Terms};
+    use preisach_core::identify::nnls::nnls;
+    use preisach_core::{Grid, PreisachModel};
+    let mut rng = Rng::new(43);
+    let (n_h, n) = (5, 3000);
+    let grid = Grid::new(-1.0, 2.0, n_h).unwrap();
+    let u: Vec<f64> = (0..n)
+        .map(|k| {
+            let t = k as f64 / n as f64;
+            0.5 + 1.5 * t * (std::f64::consts::TAU * 9.0 * t).sin()
+        })
+        .collect();
+    let extrema = [1.6, -0.5, 0.8];
+    let output = |m: &PreisachModel| {
+        let mut mem = m.interp_memory();
+        m.run_interpolated(&mut mem, &extrema, &mut [0.0; 3]);
+        let mut h = vec![0.0; n];
+        m.run_interpolated(&mut mem, &u, &mut h);
+        h
+    };
+    let truth = random_model(&mut rng, n_h);
+    let z: Vec<f64> = output(&truth).iter().map(|v| v + 0.3 * rng.range(-1.0, 1.0)).collect();
+    let n_q = grid.n_q();
+    let mut cols: Vec<Vec<f64>> = (0..n_q)
+        .map(|q| output(&PreisachModel::new(grid.clone(), (0..n_q).map(|k| f64::from(k == q)).collect(), 0.0).unwrap()))
+        .collect();
+    cols.push(vec![1.0; n]);
+    cols.push(vec![-1.0; n]);
+    let a: Vec<f64> = (0..n).flat_map(|r| cols.iter().map(move |c| c[r])).collect();
+    let x = nnls(&a, cols.len(), &z).unwrap();
+    let want: Vec<f64> = (0..n).map(|r| cols.iter().zip(&x).map(|(c, w)| c[r] * w).sum()).collect();
+
+    let mut b = Behind::after(&extrema, &u, n_h, (-1.0, 2.0), 1).unwrap();
+    let terms = Terms::default();
+    let sol = b.solve(&z, &mut cascade(&[], 1e-3), &terms, 1e-12, 300, false).unwrap();
+    let (model, _, rmse, _) = b.project(&sol, &z, &mut cascade(&[], 1e-3), &terms).unwrap();
+    let got = output(&model);
+    let err = |h: &[f64]| (h.iter().zip(&z).map(|(a, b)| (a - b) * (a - b)).sum::<f64>() / n as f64).sqrt();
+    assert!(err(&want) > sol.rmse * (1.0 + 1e-4), "the bound is not active: {} vs {}", err(&want), sol.rmse);
+    assert!((rmse - err(&got)).abs() <= 1e-9 * rmse, "reported {rmse}, run from the history {}", err(&got));
+    assert!((err(&got) - err(&want)).abs() <= 1e-6 * err(&want), "{} vs the oracle's {}", err(&got), err(&want));
+    let d = got.iter().zip(&want).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+    assert!(d < 1e-4, "outputs differ by {d}");
+}

@@ -182,7 +182,9 @@ fn nnls<'py>(
 }
 
 /// A fit problem on one input (rows and preconditioner built once): fits targets
-/// behind linear blocks, for profiling effect parameters.
+/// behind linear blocks, for profiling effect parameters. ``initial_extrema``: the
+/// hysteresis memory at the input's start is the one after these alternating extrema
+/// (input units; a history nobody recorded), as the hysteresis block's.
 #[pyclass(frozen, module = "preisach._preisach")]
 pub struct Behind {
     inner: Mutex<CoreBehind>,
@@ -208,7 +210,7 @@ fn rows_of<'a>(name: &str, a: &'a Option<PyReadonlyArray2<'_, f64>>) -> PyResult
 #[pymethods]
 impl Behind {
     #[new]
-    #[pyo3(signature = (u, n_h, u_range, stride=1, tie=0.0))]
+    #[pyo3(signature = (u, n_h, u_range, stride=1, tie=0.0, initial_extrema=None))]
     fn new(
         py: Python<'_>,
         u: PyReadonlyArray1<'_, f64>,
@@ -216,13 +218,15 @@ impl Behind {
         u_range: (f64, f64),
         stride: usize,
         tie: f64,
+        initial_extrema: Option<Vec<f64>>,
     ) -> PyResult<Self> {
         guard(|| {
             if n_h < 1 {
                 return Err(to_py(preisach_core::PreisachError::invalid("n_h", format!("must be >= 1, got {n_h}"))));
             }
             let u = slice("u", &u)?;
-            let mut b = py.detach(|| CoreBehind::new(u, n_h as usize, u_range, stride)).map_err(to_py)?;
+            let ex = initial_extrema.unwrap_or_default();
+            let mut b = py.detach(|| CoreBehind::after(&ex, u, n_h as usize, u_range, stride)).map_err(to_py)?;
             b.set_tie(tie).map_err(to_py)?;
             let handle = Mutex::new(b.projection_handle());
             Ok(Behind { inner: Mutex::new(b), handle })

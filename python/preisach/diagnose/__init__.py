@@ -11,7 +11,7 @@
   chain and fitted jointly with the masses on the training record, then scored on the
   holdout records; effects are added greedily while each one shrinks the holdout RMSE
   by at least ``min_shrink``; then a delay and the fast effects only the holdouts carry
-  (cross-fitted on them) and each holdout's ``initial_state``; ``none`` when nothing
+  (cross-fitted on them) and each record's ``initial_state``; ``none`` when nothing
   helps;
 - **how far** the gap shrinks: RMSE before (baseline) and after (augmented chain) on
   the holdouts, which were never used to fit anything.

@@ -5,11 +5,12 @@ one per thread, and the diagnosis makes many fitters of the same record (each ca
 cross-fits, the finer grid, the slow effects' windows). Building a session means the
 rows of every sample and the Gram matrix of the preconditioner: on a noisy input, a row
 per sample and most of a second of work. The pool builds each problem (input, grid,
-window, smoothness weight) once, as a template that never solves, and hands out copies
-(``Behind.fork``: the same rows, a preconditioner of its own, a cold start), so a copy
-fits exactly as a session built anew would. The templates of one input and grid at other
-windows share the masses' projection (``Behind.share``): it depends on the input's
-samples only, and is built once, by the first projection of any of their copies.
+window, smoothness weight, memory at the start) once, as a template that never solves,
+and hands out copies (``Behind.fork``: the same rows, a preconditioner of its own, a
+cold start), so a copy fits exactly as a session built anew would. The templates of one
+input, memory and grid at other windows share the masses' projection (``Behind.share``):
+it depends on the input's samples only, and is built once, by the first projection of
+any of their copies.
 """
 from __future__ import annotations
 
@@ -37,11 +38,12 @@ class Sessions:
         self._building: dict[tuple[Any, ...], threading.Lock] = {}
 
     def session(self, u: NDArray[np.float64], n_h: int, u_range: tuple[float, float], stride: int,
-                tie: float) -> Any:
-        """A new session of the problem (``u`` C-contiguous float64)."""
+                tie: float, extrema: tuple[float, ...] = ()) -> Any:
+        """A new session of the problem (``u`` C-contiguous float64; ``extrema``: the
+        memory at its start, ``Behind``'s ``initial_extrema``)."""
         from preisach import _preisach
 
-        problem = (hashlib.blake2b(u.data, digest_size=16).digest(), u.size, n_h, u_range, tie)
+        problem = (hashlib.blake2b(u.data, digest_size=16).digest(), u.size, n_h, u_range, tie, extrema)
         key = (problem, stride)
         with self._lock:
             building = self._building.setdefault(key, threading.Lock())
@@ -49,7 +51,7 @@ class Sessions:
             with self._lock:
                 template = self._templates.get(key)
             if template is None:
-                template = _preisach.Behind(u, n_h, u_range, stride, tie=tie)
+                template = _preisach.Behind(u, n_h, u_range, stride, tie=tie, initial_extrema=list(extrema))
                 with self._lock:
                     peer = next((t for (p, _), t in self._templates.items() if p == problem), None)
                     if peer is not None:

@@ -40,6 +40,7 @@ from preisach.diagnose.effects import (
     rmse,
 )
 from preisach.diagnose.identified import identified
+from preisach.diagnose.initial import predict_from
 from preisach.diagnose.pool import Sessions
 from preisach.diagnose.ranges import CREEP_AMP_MAX, CREEP_TAU_MIN, Ranges, delay_grid, search_ranges
 from preisach.diagnose.rest import fast_blocks, start_mode, transient
@@ -239,11 +240,12 @@ class Fitter:
     projection shared by every window of an input and grid). ``start``: the fit's error
     counts from this sample of the record on; the samples before it only set the
     hysteresis memory and the dynamics' state there (a later part of a record does not
-    start at rest)."""
+    start at rest). ``extrema``: the hysteresis memory at the record's start is the one
+    after these alternating extrema (a history nobody recorded; none: every relay at -1)."""
 
     def __init__(self, rec: Record, n_h: int, u_range: tuple[float, float], stride: int = 1,
                  tol: float = 3e-5, trials: Optional[Trials] = None, ranges: Optional[Ranges] = None,
-                 start: int = 0) -> None:
+                 start: int = 0, extrema: Sequence[float] = ()) -> None:
         from preisach import _preisach
 
         self._tie = _preisach.PROJECTION_TIE
@@ -260,6 +262,7 @@ class Fitter:
         self._others: dict[int, Fitter] = {}
         self.evaluations = 0
         self._u = np.ascontiguousarray(rec.u, dtype=np.float64)
+        self.extrema = tuple(float(x) for x in extrema)
         # The averaged record the chains are fitted to.
         self.t = window_mean(rec.t, self.stride)
         self.y = window_mean(rec.y, self.stride)
@@ -315,13 +318,18 @@ class Fitter:
 
     def hysteresis(self, model: PreisachModel, eff: Effects) -> NDArray[np.float64]:
         """The model's output on the training input, delayed like the chain, averaged."""
-        return self._delayed(model.predict(self._u), eff)
+        return self._delayed(self._started(model, {}) if self.extrema else model.predict(self._u), eff)
+
+    def _started(self, model: PreisachModel, eff: Effects) -> NDArray[np.float64]:
+        """Chain ``model`` + ``eff`` on the training record, the memory at its start
+        after ``extrema``."""
+        return predict_from(FitState(model, eff), self.rec, list(self.extrema))
 
     def predict(self, st: FitState) -> NDArray[np.float64]:
         """The chain's output on the averaged training record (a delay commutes with the
         linear blocks, and the average with all of them)."""
         eff = st.effects
-        x = Chain(st.model, {k: v for k, v in eff.items() if k == "rate"}).predict(self.rec.t, self._u)
+        x = self._started(st.model, {k: v for k, v in eff.items() if k == "rate"})
         rest = {k: v for k, v in eff.items() if k not in ("rate", "delay")}
         return _run(rest, self.t, self._delayed(x, eff))
 
@@ -340,7 +348,8 @@ class Fitter:
                 if orphan is not None:
                     sess = self._sessions[me] = self._sessions.pop(orphan)
         if sess is None:
-            sess = self.trials.sessions.session(self._u, self.n_h, self.u_range, self.stride, self._tie)
+            sess = self.trials.sessions.session(self._u, self.n_h, self.u_range, self.stride, self._tie,
+                                                self.extrema)
             with self._lock:
                 self._sessions[me] = sess
         return sess
@@ -460,7 +469,7 @@ class Fitter:
             f = self._others.get(n_h)
             if f is None:
                 f = self._others[n_h] = Fitter(self.rec, n_h, self.u_range, self.stride, self.tol, self.trials,
-                                               self.ranges, start=self.start)
+                                               self.ranges, start=self.start, extrema=self.extrema)
         f.rest = self.rest
         return f
 

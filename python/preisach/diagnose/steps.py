@@ -6,7 +6,7 @@ floors and the residual's localization; ``search`` the stepwise rounds (``fit_ro
 fits every candidate, ``accept`` picks one, ``eliminate`` drops one it made redundant);
 ``refine`` the chain found at the finer average and the discretization check; then the
 effects fitted on the holdouts (``holdout_effects``, :mod:`preisach.diagnose.crossfit`)
-and each holdout's ``initial_state``; :mod:`preisach.diagnose.reporting` writes the
+and each record's ``initial_state``; :mod:`preisach.diagnose.reporting` writes the
 report. Each step reads the :class:`Run` and moves the :class:`Found` chain.
 """
 from __future__ import annotations
@@ -1020,31 +1020,69 @@ def drop_standins(run: Run, found: Found, fl: Floors, levels: bool = False,
             found.tried["delay"]["state"] = st2
 
 
+def training_start(run: Run, cur: FitState) -> tuple[list[float], FitState]:
+    """The training record's own starting staircase (estimated as a holdout's is) and
+    chain ``cur`` with its masses refitted after it, on the fit's windows. Twice: masses
+    fitted from rest absorb part of a start's error, so the first estimate is refined on
+    the masses refitted after it. None where the masses are kept (a given baseline)."""
+    if type(run.fine) is not Fitter:
+        return [], cur
+    fine, st = run.fine, cur
+    ex: list[float] = []
+    for _ in range(2):
+        e = run.starts(st, run.tr)[0]
+        if not e or e == ex:
+            break
+        ex = e
+        f = Fitter(run.tr, cur.model.n_h, fine.u_range, fine.stride, fine.tol, run.trials, fine.ranges,
+                   start=fine.start, extrema=ex)
+        f.rest, f.min_delay = fine.rest, fine.min_delay
+        st = f.state(cur.effects)
+    return ex, st
+
+
+def _with_starts(run: Run, st: FitState) -> tuple[float, float, dict[str, list[float]], list[str], str]:
+    """Chain ``st``'s holdout RMSE without and with each holdout's own starting
+    staircase (kept only where its part's error is its own, ``own_start``), the
+    staircase estimated on each, the holdouts that keep theirs, and the holdout whose
+    staircase helps most on its part."""
+    est = {h.name: run.starts(st, h) for h in run.hos}
+    plain = run.holdout_errors(st)
+    kept = [own_start(st, ho, e, est[ho.name], run.trials.map) for e, ho in zip(plain, run.hos)]
+    best = max(run.hos, key=lambda h: est[h.name][1] - est[h.name][2]).name
+    return (rmse(np.concatenate(plain)), rmse(np.concatenate([e for e, _ in kept])),
+            {h.name: est[h.name][0] for h in run.hos}, [h.name for h, (_, ex) in zip(run.hos, kept) if ex], best)
+
+
 def initial_state(run: Run, found: Found, fl: Floors) -> None:
-    """The hysteresis memory at each holdout's start (history nobody recorded), estimated
-    on the part before its input swept the range, the chain fixed."""
+    """The hysteresis memory at each record's start (history nobody recorded), estimated
+    on the part before its input swept the range, the chain fixed: each holdout's; and
+    the training record's, with the masses refitted after it, kept when the holdouts
+    (never used to estimate it) fit better with it."""
     if "initial_state" not in run.candidates or found.score <= 1.2 * fl.accept:
         return
-    cur, hos = found.cur, run.hos
-    est = {h.name: run.starts(cur, h) for h in hos}
-    plain = run.holdout_errors(cur)
-    # Only a staircase whose part's error is its own is kept; the gain is against the
-    # same chain's errors without any (``found.score`` may be a cross-fitted score,
-    # whose difference from these errors is no start's).
-    kept = [own_start(cur, ho, e, est[ho.name], run.trials.map) for e, ho in zip(plain, hos)]
-    sc0, sc = rmse(np.concatenate(plain)), rmse(np.concatenate([e for e, _ in kept]))
-    g = gain(sc0, sc)
-    run.say(f"initial state of each holdout: holdout RMSE {sc:.4g} (without: {sc0:.4g}) on "
-            f"{', '.join(h.name for h, (_, ex) in zip(hos, kept) if ex) or 'no holdout'}")
-    first = max(hos, key=lambda h: est[h.name][1] - est[h.name][2])
+    cur = found.cur
+    # The gain is against the chain's errors without any staircase (``found.score`` may
+    # be a cross-fitted score, whose difference from these errors is no start's).
+    sc0, sc, recs, named, best = _with_starts(run, cur)
+    tr_ex, started = training_start(run, cur)
+    if tr_ex:
+        _, sc_t, recs_t, named_t, _ = _with_starts(run, started)
+        if sc_t < sc:
+            cur, sc, recs, named = started, sc_t, dict(recs_t, train=tr_ex), ["train"] + named_t
+    run.say(f"initial state of each record: holdout RMSE {sc:.4g} (without: {sc0:.4g}) on "
+            f"{', '.join(named) or 'no record'}")
     found.tried["initial_state"] = {
-        "state": cur, "rmse_after": sc, "rmse_current": sc0, "score": g, "round": len(found.accepted) + 1,
-        "fitted_on": "each holdout's start, before its input swept the range",
-        "params": {"extrema": est[first.name][0], "record_extrema": {h.name: est[h.name][0] for h in hos}}}
+        "state": cur, "rmse_after": sc, "rmse_current": sc0, "score": gain(sc0, sc), "round": len(found.accepted) + 1,
+        "fitted_on": ("each record's start, before its input swept the range (the training record's with the "
+                      "masses refitted after it, kept for the holdouts' gain)" if "train" in recs else
+                      "each holdout's start, before its input swept the range"),
+        "params": {"extrema": recs.get("train") or recs[best], "record_extrema": recs}}
     if not beats_floors(run, fl, sc0, sc):
         found.tried["initial_state"]["refused"] = "no gain on the holdouts"
     else:
         found.accepted.append("initial_state")
+        found.cur = cur
         found.score *= sc / sc0  # the holdout RMSE with the staircases' share removed
 
 

@@ -36,12 +36,11 @@ use clarabel::qdldl::{QDLDLFactorisation, QDLDLSettingsBuilder};
 
 use super::projection::{check_tie, Projection};
 use super::qp::{csc_upper, key, Upper, DENSE_SUM_MAX};
-use super::rows::{combine, emit_row};
+use super::rows::{combine, emit_row, memory_after};
 use super::FitReport;
 use crate::blocks::lti::{Discretization, Filter, Lti};
 use crate::error::{check_scalar, check_signal, PreisachError, Result};
 use crate::grid::Grid;
-use crate::memory::Memory;
 use crate::model::PreisachModel;
 
 /// A sparse matrix compressed by rows: row r is entries `ptr[r]..ptr[r + 1]` of
@@ -236,10 +235,10 @@ struct SampleRows {
 }
 
 impl SampleRows {
-    fn new(grid: &Grid, u: &[f64], stride: usize) -> Self {
+    fn new(grid: &Grid, extrema: &[f64], u: &[f64], stride: usize) -> Self {
         use std::collections::HashMap;
         let n_h = grid.n_h();
-        let mut mem: Memory<f64> = Memory::new(0.0, 4 * (n_h + 3));
+        let mut mem = memory_after(grid, extrema);
         let no_e = |_: f64, _: f64| 0.0;
         let mut seen: HashMap<Vec<u64>, u32> = HashMap::new();
         let mut key_buf: Vec<u64> = Vec::with_capacity(n_h + 3);
@@ -600,6 +599,8 @@ pub struct Behind {
 #[derive(Clone)]
 pub struct ProjectionHandle {
     grid: Grid,
+    /// The memory at the input's start ([`Behind::after`]).
+    extrema: Arc<Vec<f64>>,
     u: Arc<Vec<f64>>,
     tie: f64,
     slot: Arc<Mutex<Option<Arc<Projection>>>>,
@@ -637,19 +638,36 @@ impl Behind {
     /// of `stride` samples averaged (targets, weights and columns are then given per
     /// window, `u.len() / stride` of them; see [`SampleRows`]).
     pub fn new(u: &[f64], n_h: usize, u_range: (f64, f64), stride: usize) -> Result<Self> {
+        Behind::after(&[], u, n_h, u_range, stride)
+    }
+
+    /// [`Behind::new`] for a record that starts after a history nobody recorded: the
+    /// hysteresis memory at its start is the one after the input went through `extrema`
+    /// (alternating extrema, input units; as the hysteresis block's `initial_extrema`).
+    /// The masses' projection counts from the same memory.
+    pub fn after(extrema: &[f64], u: &[f64], n_h: usize, u_range: (f64, f64), stride: usize) -> Result<Self> {
         check_signal("u", u)?;
+        if let Some(e) = extrema.iter().find(|e| !e.is_finite()) {
+            return Err(PreisachError::invalid("initial_extrema", format!("must be finite, got {e}")));
+        }
         if stride < 1 || stride > u.len() {
             return Err(PreisachError::invalid("stride", format!("must be in 1..={}, got {stride}", u.len())));
         }
         let grid = Grid::new(u_range.0, u_range.1, n_h)?;
-        let rows = SampleRows::new(&grid, u, stride);
+        let rows = SampleRows::new(&grid, extrema, u, stride);
         let dim = grid.n_q() + 1;
         // Preconditioner: the unfiltered, unweighted Gram matrix (a small ridge covers
         // Everett values no sample observes).
         let mut trip = rows.gram();
         trip.extend((0..dim).map(|i| (key(i, i), 0.0)));
         let pre = Precond::new(dim, trip)?;
-        let input = ProjectionHandle { grid, u: Arc::new(u.to_vec()), tie: 0.0, slot: Arc::default() };
+        let input = ProjectionHandle {
+            grid,
+            extrema: Arc::new(extrema.to_vec()),
+            u: Arc::new(u.to_vec()),
+            tie: 0.0,
+            slot: Arc::default(),
+        };
         Ok(Behind { rows, pre, last: None, input })
     }
 
@@ -683,10 +701,14 @@ impl Behind {
     /// input, whatever their stride).
     pub fn share_projection(&mut self, other: &ProjectionHandle) -> Result<()> {
         let me = &self.input;
-        if me.grid != other.grid || me.tie != other.tie || !(Arc::ptr_eq(&me.u, &other.u) || me.u == other.u) {
+        if me.grid != other.grid
+            || me.tie != other.tie
+            || me.extrema != other.extrema
+            || !(Arc::ptr_eq(&me.u, &other.u) || me.u == other.u)
+        {
             return Err(PreisachError::invalid(
                 "share",
-                "another input, grid or smoothness weight: its projection is not this session's",
+                "another input, start, grid or smoothness weight: its projection is not this session's",
             ));
         }
         self.input = other.clone();
@@ -699,7 +721,8 @@ impl Behind {
         if let Some(p) = slot.as_ref() {
             return Ok(Arc::clone(p));
         }
-        let p = Arc::new(Projection::new(&self.input.grid, &self.input.u, self.input.tie)?);
+        let h = &self.input;
+        let p = Arc::new(Projection::after(&h.grid, &h.extrema, &h.u, h.tie)?);
         *slot = Some(Arc::clone(&p));
         Ok(p)
     }
@@ -1135,7 +1158,7 @@ mod tests {
             let grid = Grid::new(0.0, 1.0, n_h).unwrap();
             let u = input(&mut rng, 2000 + 37 * case);
             let (x, h) = signed(&mut rng, &grid, &u);
-            let mut rows = SampleRows::new(&grid, &u, stride);
+            let mut rows = SampleRows::new(&grid, &[], &u, stride);
             rows.set_delay(delay);
             let want = windows(&h, stride, delay);
             let scale = h.iter().fold(1.0f64, |a, v| a.max(v.abs()));
@@ -1178,7 +1201,7 @@ mod tests {
         for n_h in [4, 7] {
             let grid = Grid::new(0.0, 1.0, n_h).unwrap();
             let u = input(&mut rng, 1500);
-            let mut rows = SampleRows::new(&grid, &u, 1);
+            let mut rows = SampleRows::new(&grid, &[], &u, 1);
             let (dim, m) = (grid.n_q() + 1, rows.n_out());
             let cols: Vec<Vec<f64>> = (0..dim)
                 .map(|i| {

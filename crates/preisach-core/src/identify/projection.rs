@@ -43,7 +43,7 @@ use clarabel::algebra::CscMatrix;
 use super::qp::{
     csc_upper, everett_objective_with, linear_term_of, solve_everett_with, Problem, Solution, DENSE_SUM_MAX,
 };
-use super::rows::{build_rows, Rows};
+use super::rows::{build_rows_interpolated, Rows};
 use super::{excitation, min_max, never_on, pitfalls, seen_levels, FitReport, MAX_N_H_STRUCTURED};
 use crate::error::{check_scalar, check_signal, PreisachError, Result};
 use crate::grid::Grid;
@@ -75,6 +75,12 @@ impl Projection {
     /// [`TIE`] makes the optimum unique; 0 is the plain projection, whose interior
     /// point is polished towards the exact optimum).
     pub fn new(grid: &Grid, u: &[f64], tie: f64) -> Result<Self> {
+        Projection::after(grid, &[], u, tie)
+    }
+
+    /// [`Projection::new`] for an input whose memory starts after `extrema`
+    /// (alternating extrema, input units; see `filtered::Behind::after`).
+    pub fn after(grid: &Grid, extrema: &[f64], u: &[f64], tie: f64) -> Result<Self> {
         check_signal("u", u)?;
         check_tie(tie)?;
         let n_h = grid.n_h();
@@ -85,7 +91,7 @@ impl Projection {
             ));
         }
         let t0 = Instant::now();
-        let rows = build_rows(grid, u, &vec![0.0; u.len()], true);
+        let rows = build_rows_interpolated(grid, extrema, u, &vec![0.0; u.len()]);
         let (u_min, u_max) = min_max(u);
         let zero = never_on(grid, grid.position(u_max).ceil() as usize);
         let pb = Problem { rows: &rows, mu: 0.0, scale: 1.0, zero: &zero, reg: tie };

@@ -116,11 +116,23 @@ pub fn everett_coords(k: usize) -> (usize, usize) {
     (a, k - a * (a - 1) / 2)
 }
 
+/// The rows' memory (grid positions) at a record's start: every relay at −1, then the
+/// input through `extrema` (alternating extrema of a history nobody recorded, input
+/// units), as the hysteresis block's `initial_extrema` set it; the first sample then
+/// moves on from there.
+pub(super) fn memory_after(grid: &Grid, extrema: &[f64]) -> Memory<f64> {
+    let mut mem: Memory<f64> = Memory::new(0.0, 4 * (grid.n_h() + 3));
+    for &e in extrema {
+        mem.apply(grid.position(e), &|_: f64, _: f64| 0.0);
+    }
+    mem
+}
+
 /// Build the merged rows of input `u` and target `y` (same length, finite).
 /// `interpolated` selects the model whose masses are spread over their cells.
 pub fn build_rows(grid: &Grid, u: &[f64], y: &[f64], interpolated: bool) -> Rows {
     if interpolated {
-        return build_rows_interpolated(grid, u, y);
+        return build_rows_interpolated(grid, &[], u, y);
     }
     let n_h = grid.n_h();
     let mut mem: Memory<f64> = Memory::new(0.0, n_h + 3);
@@ -236,9 +248,10 @@ struct Moments {
 /// least-squares contribution is fixed by the 2×2 moment matrix M of (1 − λ, λ) and the
 /// moments with y: with M = L Lᵀ, the two pseudo-rows `L₁₁ r_a + L₂₁ r_b` and `L₂₂ r_b`
 /// with targets `L⁻¹ [Σ(1−λ)y, Σλy]` reproduce it to rounding.
-fn build_rows_interpolated(grid: &Grid, u: &[f64], y: &[f64]) -> Rows {
+/// The memory starts after `extrema` ([`memory_after`]).
+pub(super) fn build_rows_interpolated(grid: &Grid, extrema: &[f64], u: &[f64], y: &[f64]) -> Rows {
     let n_h = grid.n_h();
-    let mut mem: Memory<f64> = Memory::new(0.0, 4 * (n_h + 3));
+    let mut mem = memory_after(grid, extrema);
     let no_e = |_: f64, _: f64| 0.0;
     let mut groups: Vec<(Vec<f64>, f64, usize)> = Vec::new(); // (turns, cur cell, count)
     let mut mom: Vec<Moments> = Vec::new();
