@@ -118,7 +118,7 @@ pub fn everett_coords(k: usize) -> (usize, usize) {
 
 /// The rows' memory (grid positions) at a record's start: every relay at −1, then the
 /// input through `extrema` (alternating extrema of a history nobody recorded, input
-/// units), as the hysteresis block's `initial_extrema` set it; the first sample then
+/// units), as the hysteresis block's `initial_extrema` sets it; the first sample then
 /// moves on from there.
 pub(super) fn memory_after(grid: &Grid, extrema: &[f64]) -> Memory<f64> {
     let mut mem: Memory<f64> = Memory::new(0.0, 4 * (grid.n_h() + 3));
