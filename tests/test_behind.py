@@ -312,7 +312,7 @@ def test_bad_arguments_are_named():
         b.solve(u, DT, _blocks({}), weights=-np.ones(u.size))
     with pytest.raises(ValueError, match="stride"):
         _preisach.Behind(u, N_H, RANGE, 0)
-    with pytest.raises(ValueError, match="initial_extrema: must be finite"):
+    with pytest.raises(ValueError, match="initial_extrema: NaN at index 1"):
         _preisach.Behind(u, N_H, RANGE, initial_extrema=[0.5, float("nan")])
     with pytest.raises(ValueError, match="share: another input, start"):
         _preisach.Behind(u, N_H, RANGE, initial_extrema=[0.5]).share(b)
@@ -411,8 +411,8 @@ def test_another_n_h_is_fitted_as_a_fitter_of_that_n_h_would_and_its_fitter_kept
     alone = Fitter(rec, N_H + 4, RANGE, stride=2).state(eff)
     assert fine.model.n_h == N_H + 4
     assert fine.train_rmse == pytest.approx(alone.train_rmse, rel=1e-6)
-    assert f._other(N_H + 4) is f._other(N_H + 4)
-    assert f._other(N_H + 2) is not f._other(N_H + 4)
+    assert f.other(N_H + 4) is f.other(N_H + 4)
+    assert f.other(N_H + 2) is not f.other(N_H + 4)
 
 
 def test_a_chain_asked_for_again_is_the_one_fitted_and_the_callers_own(drift_record):

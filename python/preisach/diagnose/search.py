@@ -259,7 +259,7 @@ class Fitter:
         self._memo: dict[tuple[Any, ...], tuple[float, list[float]]] = {}
         self._columns: dict[tuple[Any, ...], Optional[NDArray[np.float64]]] = {}
         self._states: dict[tuple[Any, ...], FitState] = {}
-        self._others: dict[int, Fitter] = {}
+        self._others: dict[tuple[int, tuple[float, ...]], Fitter] = {}
         self.evaluations = 0
         self._u = np.ascontiguousarray(rec.u, dtype=np.float64)
         self.extrema = tuple(float(x) for x in extrema)
@@ -451,7 +451,7 @@ class Fitter:
         does not identify zero, ``preisach.diagnose.identified``) and its linear
         coefficients refitted with them."""
         if n_h is not None and n_h != self.n_h:
-            return self._other(n_h).state(eff)
+            return self.other(n_h).state(eff)
         def make() -> FitState:
             res = self._solve(self._problem(eff), nnls=True)
             model = identified(PreisachModel._wrap(res["model"], "interpolated"), self._u)
@@ -462,14 +462,16 @@ class Fitter:
         st = self._cached(self._states, STATES_KEPT, (self.rest,) + _key(eff), make)
         return FitState(st.model, {n: dict(p) for n, p in st.effects.items()}, st.train_rmse)
 
-    def _other(self, n_h: int) -> Fitter:
-        """The fitter of the same record with ``n_h`` levels (kept: its sessions are the
+    def other(self, n_h: int, extrema: Optional[Sequence[float]] = None) -> Fitter:
+        """The fitter of the same record and windows with ``n_h`` levels and, when given,
+        the memory at the record's start after ``extrema`` (kept: its sessions are the
         costly part)."""
+        ex = self.extrema if extrema is None else tuple(float(x) for x in extrema)
         with self._lock:
-            f = self._others.get(n_h)
+            f = self._others.get((n_h, ex))
             if f is None:
-                f = self._others[n_h] = Fitter(self.rec, n_h, self.u_range, self.stride, self.tol, self.trials,
-                                               self.ranges, start=self.start, extrema=self.extrema)
+                f = self._others[(n_h, ex)] = Fitter(self.rec, n_h, self.u_range, self.stride, self.tol,
+                                                     self.trials, self.ranges, start=self.start, extrema=ex)
         f.rest = self.rest
         return f
 

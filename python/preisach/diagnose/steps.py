@@ -1027,17 +1027,14 @@ def training_start(run: Run, cur: FitState) -> tuple[list[float], FitState]:
     the masses refitted after it. None where the masses are kept (a given baseline)."""
     if type(run.fine) is not Fitter:
         return [], cur
-    fine, st = run.fine, cur
+    st = cur
     ex: list[float] = []
     for _ in range(2):
         e = run.starts(st, run.tr)[0]
         if not e or e == ex:
             break
         ex = e
-        f = Fitter(run.tr, cur.model.n_h, fine.u_range, fine.stride, fine.tol, run.trials, fine.ranges,
-                   start=fine.start, extrema=ex)
-        f.rest, f.min_delay = fine.rest, fine.min_delay
-        st = f.state(cur.effects)
+        st = run.fine.other(cur.model.n_h, ex).state(cur.effects)
     return ex, st
 
 

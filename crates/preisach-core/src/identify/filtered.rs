@@ -39,7 +39,7 @@ use super::qp::{csc_upper, key, Upper, DENSE_SUM_MAX};
 use super::rows::{combine, emit_row, memory_after};
 use super::FitReport;
 use crate::blocks::lti::{Discretization, Filter, Lti};
-use crate::error::{check_scalar, check_signal, PreisachError, Result};
+use crate::error::{check_finite, check_scalar, check_signal, PreisachError, Result};
 use crate::grid::Grid;
 use crate::model::PreisachModel;
 
@@ -647,9 +647,7 @@ impl Behind {
     /// The masses' projection counts from the same memory.
     pub fn after(extrema: &[f64], u: &[f64], n_h: usize, u_range: (f64, f64), stride: usize) -> Result<Self> {
         check_signal("u", u)?;
-        if let Some(e) = extrema.iter().find(|e| !e.is_finite()) {
-            return Err(PreisachError::invalid("initial_extrema", format!("must be finite, got {e}")));
-        }
+        check_finite("initial_extrema", extrema)?;
         if stride < 1 || stride > u.len() {
             return Err(PreisachError::invalid("stride", format!("must be in 1..={}, got {stride}", u.len())));
         }

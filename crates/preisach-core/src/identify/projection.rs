@@ -45,7 +45,7 @@ use super::qp::{
 };
 use super::rows::{build_rows_interpolated, Rows};
 use super::{excitation, min_max, never_on, pitfalls, seen_levels, FitReport, MAX_N_H_STRUCTURED};
-use crate::error::{check_scalar, check_signal, PreisachError, Result};
+use crate::error::{check_finite, check_scalar, check_signal, PreisachError, Result};
 use crate::grid::Grid;
 use crate::model::PreisachModel;
 
@@ -82,6 +82,7 @@ impl Projection {
     /// (alternating extrema, input units; see `filtered::Behind::after`).
     pub fn after(grid: &Grid, extrema: &[f64], u: &[f64], tie: f64) -> Result<Self> {
         check_signal("u", u)?;
+        check_finite("initial_extrema", extrema)?;
         check_tie(tie)?;
         let n_h = grid.n_h();
         if n_h > MAX_N_H_STRUCTURED {
