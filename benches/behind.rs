@@ -14,7 +14,7 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use preisach_core::blocks::{CreepParams, Discretization, Filter, Lti, Mode, VibrationParams};
-use preisach_core::identify::filtered::{Behind, Terms};
+use preisach_core::identify::filtered::{Behind, Stop, Terms};
 use preisach_core::identify::projection::TIE;
 
 #[path = "common.rs"]
@@ -70,21 +70,21 @@ fn behind(c: &mut Criterion) {
     let mut fit = Behind::new(&u, N_H, range, STRIDE).unwrap();
     let mut lti = Filter::cascade(&chain(700.0), dt, Discretization::Foh);
     g.bench_function("solve_cold", |b| {
-        b.iter(|| black_box(fit.solve(&z, &mut lti, &terms, tol, 300, false).unwrap().rmse))
+        b.iter(|| black_box(fit.solve(&z, &mut lti, &terms, &Stop::new(tol, 300), false).unwrap().rmse))
     });
     let mut along: Vec<Filter> =
         (0..5).map(|k| Filter::cascade(&chain(700.0 * (1.0 + 0.005 * k as f64)), dt, Discretization::Foh)).collect();
     g.bench_function("profile_5_warm", |b| {
         b.iter(|| {
-            fit.solve(&z, &mut along[0], &terms, tol, 300, false).unwrap();
+            fit.solve(&z, &mut along[0], &terms, &Stop::new(tol, 300), false).unwrap();
             let mut e = 0.0;
             for l in along.iter_mut().skip(1) {
-                e += fit.solve(&z, l, &terms, tol, 300, true).unwrap().rmse;
+                e += fit.solve(&z, l, &terms, &Stop::new(tol, 300), true).unwrap().rmse;
             }
             black_box(e)
         })
     });
-    let sol = fit.solve(&z, &mut lti, &terms, tol, 300, false).unwrap();
+    let sol = fit.solve(&z, &mut lti, &terms, &Stop::new(tol, 300), false).unwrap();
     g.bench_function("project", |b| b.iter(|| black_box(fit.project(&sol, &z, &mut lti, &terms).unwrap().2)));
     // The diagnosis's projection: with the smoothness term that makes it unique, the
     // interior point not polished.
@@ -93,7 +93,8 @@ fn behind(c: &mut Criterion) {
     g.bench_function("project_tie", |b| b.iter(|| black_box(tied.project(&sol, &z, &mut lti, &terms).unwrap().2)));
     // The projections of the profile's five solutions in turn (each one's neighbour the
     // last one projected, as a search asks for them).
-    let sols: Vec<_> = along.iter_mut().map(|l| fit.solve(&z, l, &terms, tol, 300, false).unwrap()).collect();
+    let sols: Vec<_> =
+        along.iter_mut().map(|l| fit.solve(&z, l, &terms, &Stop::new(tol, 300), false).unwrap()).collect();
     g.bench_function("project_profile_5", |b| {
         b.iter(|| {
             let mut e = 0.0;

@@ -310,6 +310,10 @@ def test_bad_arguments_are_named():
         b.solve(u, -DT, _blocks({}))
     with pytest.raises(ValueError, match="weights: negative"):
         b.solve(u, DT, _blocks({}), weights=-np.ones(u.size))
+    with pytest.raises(ValueError, match="above: must be finite, got NaN"):
+        b.solve(u, DT, _blocks({}), above=float("nan"))
+    with pytest.raises(ValueError, match="above: must be >= 0"):
+        b.solve(u, DT, _blocks({}), above=-1.0)
     with pytest.raises(ValueError, match="stride"):
         _preisach.Behind(u, N_H, RANGE, 0)
     with pytest.raises(ValueError, match="initial_extrema: NaN at index 1"):
@@ -341,6 +345,28 @@ def test_adding_an_effect_never_fits_the_training_record_worse(drift_record):
     # y = (1 + g t)(x + 0.05) + o'' t: the offset 0.05 stays in the model, o'' = -0.03 - 0.05 g.
     assert f.with_linear({"drift": {"gain_per_s": 0.02, "offset": 0.0, "offset_per_s": 0.0}})["drift"][
         "offset_per_s"] == pytest.approx(-0.03 - 0.05 * 0.02, abs=2e-3)
+
+
+def test_a_chain_that_cannot_beat_a_ceiling_is_given_up_and_fitted_exactly_when_asked(drift_record):
+    """``Fitter.J(eff, above)``: a chain whose fit cannot get below ``above`` (a low-pass
+    far below the record's band, against the true drift's error) gives up, at an error
+    above ``above`` and above the chain's own optimum (a fresh fitter's exact ``J``, the
+    oracle); a lower ceiling reuses that answer, and ``J`` without one fits it exactly."""
+    rec, _ = drift_record
+    good = {"drift": {"gain_per_s": 0.02, "offset": 0.0, "offset_per_s": 0.0}}
+    bad = {"lowpass": {"cutoff_hz": 1.0, "order": 1}}
+    exact = Fitter(rec, N_H, RANGE, stride=2).J(bad)
+    f = Fitter(rec, N_H, RANGE, stride=2)
+    ceiling = f.J(good)
+    assert exact > 10 * ceiling
+    quit = f.J(bad, above=ceiling)
+    assert quit > exact * 1.02 and quit > ceiling
+    n = f.evaluations
+    assert f.J(bad, above=ceiling / 2) == quit and f.evaluations == n
+    # (From the given-up point the iterations stop elsewhere within their tolerance.)
+    assert f.J(bad) == pytest.approx(exact, rel=1e-3) and f.evaluations == n + 1
+    assert f.J(bad, above=ceiling) == f.J(bad) and f.evaluations == n + 1
+    assert f.J(good, above=ceiling) == ceiling  # an exact value answers every ceiling
 
 
 def _drifting_creeping_records():

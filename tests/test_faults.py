@@ -235,8 +235,9 @@ def test_ctrl_c_in_the_candidate_fits_starts_nothing_new(tmp_path, monkeypatch):
             t.join(300)
             assert not t.is_alive()
     assert count["at_interrupt"] > 0, "the diagnosis ended before the interrupt"
-    # Started after the interrupt: at most the solves the other threads had begun.
-    assert count["solves"] - count["at_interrupt"] <= 4, count
+    # Started after the interrupt: at most the solves the other threads had begun (two
+    # candidates, two trials, and the finer hysteresis alone, fitted beside the round).
+    assert count["solves"] - count["at_interrupt"] <= 5, count
 
 
 # --- inputs are never modified -------------------------------------------------------------

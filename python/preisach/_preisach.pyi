@@ -89,6 +89,7 @@ class Behind:
         max_iter: int = 300,
         warm: bool = True,
         nnls: bool = False,
+        above: Optional[float] = None,
     ) -> dict[str, Any]: ...
 
 def nnls(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]: ...

@@ -27,6 +27,17 @@ fn cascade(blocks: &[Lti], dt: f64) -> Filter {
     Filter::cascade(blocks, dt, Discretization::Foh)
 }
 
+/// An identification record's input: a sine of `cycles` periods whose amplitude grows
+/// from mid-range (0.5) to 1.5, over `n` samples.
+fn increasing_sine(n: usize, cycles: f64) -> Vec<f64> {
+    (0..n)
+        .map(|k| {
+            let t = k as f64 / n as f64;
+            0.5 + 1.5 * t * (std::f64::consts::TAU * cycles * t).sin()
+        })
+        .collect()
+}
+
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
@@ -207,6 +218,7 @@ fn projection_is_the_plain_fit_of_the_optimum_output() {
                 iterations: 0,
                 residual: 0.0,
                 rmse: 0.0,
+                gave_up: false,
             };
             let terms = preisach_core::identify::filtered::Terms::default();
             let (model, _, _, rep) = b.project(&sol, &z, &mut id, &terms).unwrap();
@@ -312,7 +324,7 @@ fn a_forked_session_solves_as_a_new_one_bit_for_bit() {
     // The oracle: a session built anew on the same input. The fork is taken from a
     // session that has solved (its warm start and delay set): the fork starts cold, as a
     // new session does, and the session it came from keeps its own state.
-    use preisach_core::identify::filtered::{Behind, Terms};
+    use preisach_core::identify::filtered::{Behind, Stop, Terms};
     let mut rng = Rng::new(31);
     let (n_h, dt) = (6, 1e-4);
     let u = random_input(&mut rng, 3000);
@@ -323,15 +335,15 @@ fn a_forked_session_solves_as_a_new_one_bit_for_bit() {
         let z2: Vec<f64> = (0..m).map(|_| rng.range(-1.0, 1.0)).collect();
         let blocks = [mode(700.0, 0.05)];
         let delayed = Terms { delay: 2.5, ..Terms::default() };
-        let before = first.solve(&z1, &mut cascade(&blocks, dt), &delayed, 1e-9, 40, true).unwrap();
+        let before = first.solve(&z1, &mut cascade(&blocks, dt), &delayed, &Stop::new(1e-9, 40), true).unwrap();
         let mut fork = first.fork().unwrap();
         let mut new = Behind::new(&u, n_h, (-1.0, 2.0), stride).unwrap();
         let terms = Terms::default();
-        let a = fork.solve(&z2, &mut cascade(&blocks, dt), &terms, 1e-9, 40, true).unwrap();
-        let b = new.solve(&z2, &mut cascade(&blocks, dt), &terms, 1e-9, 40, true).unwrap();
+        let a = fork.solve(&z2, &mut cascade(&blocks, dt), &terms, &Stop::new(1e-9, 40), true).unwrap();
+        let b = new.solve(&z2, &mut cascade(&blocks, dt), &terms, &Stop::new(1e-9, 40), true).unwrap();
         assert_eq!((a.x, a.iterations, a.rmse.to_bits()), (b.x, b.iterations, b.rmse.to_bits()));
         // The first session warm-starts from its own last solve, not the fork's.
-        let again = first.solve(&z1, &mut cascade(&blocks, dt), &delayed, 1e-9, 40, true).unwrap();
+        let again = first.solve(&z1, &mut cascade(&blocks, dt), &delayed, &Stop::new(1e-9, 40), true).unwrap();
         assert!(again.iterations < before.iterations, "{} vs {}", again.iterations, before.iterations);
         assert!((again.rmse - before.rmse).abs() <= 1e-6 * before.rmse, "{} vs {}", again.rmse, before.rmse);
     }
@@ -343,15 +355,10 @@ fn a_session_after_a_history_fits_the_chain_started_there() {
     // record (an increasing sine from mid-range, as an identification record starts),
     // behind a mode. A session started after the same extrema recovers that output; one
     // started from negative saturation cannot; a stride and several histories.
-    use preisach_core::identify::filtered::{Behind, Terms};
+    use preisach_core::identify::filtered::{Behind, Stop, Terms};
     let mut rng = Rng::new(41);
     let (n_h, dt, n) = (6, 1e-4, 4000);
-    let u: Vec<f64> = (0..n)
-        .map(|k| {
-            let t = k as f64 / n as f64;
-            0.5 + 1.5 * t * (std::f64::consts::TAU * 12.0 * t).sin()
-        })
-        .collect();
+    let u = increasing_sine(n, 12.0);
     let blocks = [mode(300.0, 0.05)];
     for (case, stride) in [1, 2, 1].into_iter().enumerate() {
         let truth = random_model(&mut rng, n_h);
@@ -368,7 +375,7 @@ fn a_session_after_a_history_fits_the_chain_started_there() {
         let span = z.iter().fold(0.0f64, |a, v| a.max(v.abs()));
         let terms = Terms::default();
         let fit_rmse = |b: &mut Behind| {
-            let sol = b.solve(&z, &mut cascade(&blocks, dts), &terms, 1e-12, 300, false).unwrap();
+            let sol = b.solve(&z, &mut cascade(&blocks, dts), &terms, &Stop::new(1e-12, 300), false).unwrap();
             b.project(&sol, &z, &mut cascade(&blocks, dts), &terms).unwrap().2
         };
         let after = fit_rmse(&mut Behind::after(&extrema, &u, n_h, (-1.0, 2.0), stride).unwrap());
@@ -386,18 +393,13 @@ fn a_projection_after_a_history_is_the_nnls_of_the_record_started_there() {
     // mass (and a free offset), each column the model's own output from the memory after
     // the history's extrema. With no dynamics and no windows the projection is that fit
     // (noise makes the masses' bound active).
-    use preisach_core::identify::filtered::{Behind, Terms};
+    use preisach_core::identify::filtered::{Behind, Stop, Terms};
     use preisach_core::identify::nnls::nnls;
     use preisach_core::{Grid, PreisachModel};
     let mut rng = Rng::new(43);
     let (n_h, n) = (5, 3000);
     let grid = Grid::new(-1.0, 2.0, n_h).unwrap();
-    let u: Vec<f64> = (0..n)
-        .map(|k| {
-            let t = k as f64 / n as f64;
-            0.5 + 1.5 * t * (std::f64::consts::TAU * 9.0 * t).sin()
-        })
-        .collect();
+    let u = increasing_sine(n, 9.0);
     let extrema = [1.6, -0.5, 0.8];
     let output = |m: &PreisachModel| {
         let mut mem = m.interp_memory();
@@ -420,7 +422,7 @@ fn a_projection_after_a_history_is_the_nnls_of_the_record_started_there() {
 
     let mut b = Behind::after(&extrema, &u, n_h, (-1.0, 2.0), 1).unwrap();
     let terms = Terms::default();
-    let sol = b.solve(&z, &mut cascade(&[], 1e-3), &terms, 1e-12, 300, false).unwrap();
+    let sol = b.solve(&z, &mut cascade(&[], 1e-3), &terms, &Stop::new(1e-12, 300), false).unwrap();
     let (model, _, rmse, _) = b.project(&sol, &z, &mut cascade(&[], 1e-3), &terms).unwrap();
     let got = output(&model);
     let err = |h: &[f64]| (h.iter().zip(&z).map(|(a, b)| (a - b) * (a - b)).sum::<f64>() / n as f64).sqrt();
@@ -429,4 +431,49 @@ fn a_projection_after_a_history_is_the_nnls_of_the_record_started_there() {
     assert!((err(&got) - err(&want)).abs() <= 1e-6 * err(&want), "{} vs the oracle's {}", err(&got), err(&want));
     let d = got.iter().zip(&want).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
     assert!(d < 1e-4, "outputs differ by {d}");
+}
+
+#[test]
+fn a_fit_that_cannot_get_below_the_ceiling_gives_up_and_one_that_can_is_left_alone() {
+    // A record behind a mode, fitted behind that mode (its optimum is the oracle: the
+    // solve with no ceiling) and behind a far too slow low-pass, which no masses make
+    // fit. With a ceiling the first beats, its solve is the same to the bit; the second
+    // gives up early, above the ceiling and above its own optimum.
+    use preisach_core::identify::filtered::{Behind, Stop, Terms};
+    let mut rng = Rng::new(47);
+    let (n_h, dt, n) = (8, 1e-4, 6000);
+    let u = increasing_sine(n, 15.0);
+    let truth = random_model(&mut rng, n_h);
+    let mut h = vec![0.0; n];
+    truth.run_interpolated(&mut truth.interp_memory(), &u, &mut h);
+    let right = [mode(400.0, 0.04)];
+    let mut z = vec![0.0; n];
+    cascade(&right, dt).apply(&h, &mut z);
+    z.iter_mut().for_each(|v| *v += 0.01 * rng.range(-1.0, 1.0));
+    let wrong = [first_order(1.0 / (std::f64::consts::TAU * 2.0))];
+    let terms = Terms::default();
+    let solve = |blocks: &[Lti], above: Option<f64>| {
+        let mut b = Behind::new(&u, n_h, (-1.0, 2.0), 1).unwrap();
+        b.solve(&z, &mut cascade(blocks, dt), &terms, &Stop { tol: 1e-12, max_iter: 300, above }, false).unwrap()
+    };
+    let best = solve(&right, None);
+    let kept = solve(&right, Some(1.05 * best.rmse));
+    assert!(!kept.gave_up);
+    assert_eq!((kept.x, kept.iterations), (best.x, best.iterations));
+
+    let full = solve(&wrong, None);
+    let ceiling = 2.0 * best.rmse;
+    assert!(full.rmse > 1.5 * ceiling, "the wrong chain fits: {} vs {ceiling}", full.rmse);
+    let quit = solve(&wrong, Some(ceiling));
+    assert!(quit.gave_up && !full.gave_up);
+    assert!(quit.iterations * 2 < full.iterations, "{} of {} iterations", quit.iterations, full.iterations);
+    assert!(quit.rmse >= full.rmse && quit.rmse > ceiling, "{} vs {} and {ceiling}", quit.rmse, full.rmse);
+    // A ceiling the wrong chain's optimum just beats: reached, not given up on the way.
+    let near = solve(&wrong, Some(1.01 * full.rmse));
+    assert!(!near.gave_up && near.rmse < 1.01 * full.rmse, "{} vs {}", near.rmse, full.rmse);
+
+    let mut b = Behind::new(&u, n_h, (-1.0, 2.0), 1).unwrap();
+    let bad =
+        b.solve(&z, &mut cascade(&right, dt), &terms, &Stop { tol: 1e-6, max_iter: 10, above: Some(f64::NAN) }, false);
+    assert!(bad.unwrap_err().to_string().contains("above"));
 }

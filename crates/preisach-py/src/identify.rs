@@ -9,7 +9,7 @@ use std::sync::Mutex;
 use numpy::{PyReadonlyArray2, PyUntypedArrayMethods};
 use preisach_core::blocks::{Discretization, Filter};
 use preisach_core::identify::filtered::{
-    fit_behind as core_fit_behind, Behind as CoreBehind, BehindOptions, ProjectionHandle, Terms,
+    fit_behind as core_fit_behind, Behind as CoreBehind, BehindOptions, ProjectionHandle, Stop, Terms,
 };
 use preisach_core::identify::nnls::nnls as core_nnls;
 use preisach_core::identify::{build_rows, fit as core_fit, FitOptions, Solver, DEFAULT_DIAGONAL_FLOOR};
@@ -267,8 +267,10 @@ impl Behind {
     /// Unconstrained optimum of the fit behind ``chain`` (its linear blocks; its delay
     /// delays the hysteresis output before the averaging), and with ``nnls`` the masses
     /// >= 0: a dict with rmse, iterations, residual, extra (coefficients of pre then post
-    /// columns) and, with ``nnls``, model, rmse_nnls, extra_nnls.
-    #[pyo3(signature = (z, dt, chain, weights=None, pre=None, post=None, tol=1e-4, max_iter=300, warm=true, nnls=false))]
+    /// columns), gave_up and, with ``nnls``, model, rmse_nnls, extra_nnls. ``above``: give
+    /// up a fit that cannot get below this weighted RMSE (``gave_up``; its rmse is then
+    /// where it stopped).
+    #[pyo3(signature = (z, dt, chain, weights=None, pre=None, post=None, tol=1e-4, max_iter=300, warm=true, nnls=false, above=None))]
     #[allow(clippy::too_many_arguments)]
     fn solve<'py>(
         &self,
@@ -283,6 +285,7 @@ impl Behind {
         max_iter: usize,
         warm: bool,
         nnls: bool,
+        above: Option<f64>,
     ) -> PyResult<Bound<'py, PyDict>> {
         guard(|| {
             let z = slice("z", &z)?;
@@ -304,7 +307,7 @@ impl Behind {
                     }
                     let mut lti = Filter::cascade(&blocks, dt, Discretization::Foh);
                     let mut b = self.inner.lock().unwrap_or_else(|e| e.into_inner());
-                    let sol = b.solve(z, &mut lti, &terms, tol, max_iter, warm)?;
+                    let sol = b.solve(z, &mut lti, &terms, &Stop { tol, max_iter, above }, warm)?;
                     let proj = if nnls { Some(b.project(&sol, z, &mut lti, &terms)?) } else { None };
                     Ok::<_, preisach_core::PreisachError>((sol, proj))
                 })
@@ -315,6 +318,7 @@ impl Behind {
             d.set_item("iterations", sol.iterations)?;
             d.set_item("residual", sol.residual)?;
             d.set_item("extra", sol.extra)?;
+            d.set_item("gave_up", sol.gave_up)?;
             if let Some((model, coef, rmse, _)) = proj {
                 d.set_item("model", Model { inner: Arc::new(model) })?;
                 d.set_item("rmse_nnls", rmse)?;

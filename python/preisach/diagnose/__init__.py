@@ -130,10 +130,10 @@ def _diagnose(train: RecordLike, holdouts: Sequence[RecordLike], n_h: int,
         run = steps.Run(tr, hos, n_h, tuple(candidates), min_shrink, trials, say, base, fitter, fine, stride,
                         sstride, search_rate_hz)
         steps.mark_rest(run)
-    with trials.tasks(1) as ex:  # the finer hysteresis alone is fitted beside the reference and where
+    with trials.tasks(1) as ex:  # the finer hysteresis alone is fitted beside the reference, where and round 1
         found, alone, nh2 = steps.reference(run, ex)
         floors, where, sig = steps.where(run, found, alone, nh2)
-    steps.search(run, found, floors)
+        steps.search(run, found, floors)
     steps.refine(run, found, floors)
     steps.holdout_effects(run, found, floors)
     steps.session_offsets(run, found, floors)

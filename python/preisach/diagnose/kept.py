@@ -79,7 +79,7 @@ class KeptFitter(Fitter):
             r = r - o * self.t
         return float(np.mean(r * r)), e
 
-    def J(self, eff: Effects) -> float:
+    def J(self, eff: Effects, above: Optional[float] = None) -> float:
         k = _key(eff)
         with self._lock:
             if k in self._memo:
@@ -87,7 +87,7 @@ class KeptFitter(Fitter):
         mse, e = self._fit(eff)
         self.evaluations += 1
         with self._lock:
-            self._memo[k] = (mse, [])
+            self._memo[k] = (mse, [], None)
             self._fixed[k] = e
         return mse
 

@@ -144,9 +144,10 @@ REGISTRY: dict[str, Effect] = {e.name: e for e in (
            agree=("tau_s", 1.0), beats_delay=True, acts_as_lag=True),
 )}
 
-#: The order the candidates' fits start in: the slowest first (a mode's fit is the
-#: longest; the quick ones fill the other thread), so a round ends with both threads busy.
-SLOW_FIRST = ("vibration", "lowpass", "creep", "delay")
+#: The order the candidates' fits start in: the slowest first (creep's, which scores its
+#: time constants on the holdouts, then a mode's; the quick ones fill the other thread),
+#: so a round ends with both threads busy.
+SLOW_FIRST = ("creep", "vibration", "lowpass", "delay")
 
 #: Effects handled by their own steps rather than by adding a block: a finer grid
 #: (``discretization``) and each holdout's hysteresis memory at its start

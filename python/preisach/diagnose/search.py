@@ -256,7 +256,7 @@ class Fitter:
         self.tol = tol
         self._sessions: dict[int, Any] = {}
         self._lock = threading.Lock()
-        self._memo: dict[tuple[Any, ...], tuple[float, list[float]]] = {}
+        self._memo: dict[tuple[Any, ...], tuple[float, list[float], Optional[float]]] = {}
         self._columns: dict[tuple[Any, ...], Optional[NDArray[np.float64]]] = {}
         self._states: dict[tuple[Any, ...], FitState] = {}
         self._others: dict[tuple[int, tuple[float, ...]], Fitter] = {}
@@ -294,18 +294,19 @@ class Fitter:
         #: diagnosis sets it from all the records): :meth:`timing` fits below it.
         self.min_delay = 2.0 * rec.dt
 
-    def Jmany(self, effs: Sequence[Effects]) -> list[float]:
+    def Jmany(self, effs: Sequence[Effects], above: Optional[float] = None) -> list[float]:
         """``J`` of several chains (the ones not memoized yet in parallel)."""
         with self._lock:
             todo = [e for e in effs if _key(e) not in self._memo]
-        self.trials.map(self.J, todo)
-        return [self.J(e) for e in effs]
+        self.trials.map(lambda e: self.J(e, above), todo)
+        return [self.J(e, above) for e in effs]
 
-    def along(self, chain: Callable[[float], Effects]) -> tuple[Callable[[float], float],
-                                                               Callable[[list[float]], list[float]]]:
+    def along(self, chain: Callable[[float], Effects], above: Optional[float] = None
+              ) -> tuple[Callable[[float], float], Callable[[list[float]], list[float]]]:
         """The error along a one-parameter family of chains, as the searches take it:
-        one point (``f``) and several at once, in parallel (``fmany``)."""
-        return (lambda x: self.J(chain(x))), (lambda xs: self.Jmany([chain(x) for x in xs]))
+        one point (``f``) and several at once, in parallel (``fmany``); ``above``: as in
+        :meth:`J`."""
+        return (lambda x: self.J(chain(x), above)), (lambda xs: self.Jmany([chain(x) for x in xs], above))
 
     def coarse(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """A full-rate signal of the training record, averaged like the fit's target."""
@@ -354,12 +355,12 @@ class Fitter:
                 self._sessions[me] = sess
         return sess
 
-    def _solve(self, pb: dict[str, Any], nnls: bool = False) -> dict[str, Any]:
+    def _solve(self, pb: dict[str, Any], nnls: bool = False, above: Optional[float] = None) -> dict[str, Any]:
         """One solve on this thread's session (:meth:`_session`)."""
         self.trials.check()
         sess = self._session()
         return sess.solve(pb["z"], self.dt, pb["chain"]._core, pb["w"], pb["pre"], pb["post"], self.tol,
-                          nnls=nnls)
+                          nnls=nnls, above=above)
 
     def _problem(self, eff: Effects) -> dict[str, Any]:
         t, y = self.t, self.y
@@ -423,21 +424,24 @@ class Fitter:
             e["drift"]["offset_per_s"] = float(extra[i])
         return e
 
-    def J(self, eff: Effects) -> float:
+    def J(self, eff: Effects, above: Optional[float] = None) -> float:
         """Training MSE with the masses (unconstrained) and the linear coefficients
-        refitted; memoized."""
+        refitted; memoized. ``above``: an MSE the caller needs to know only whether the
+        chain beats; a fit that cannot get below it gives up (the core's ``above``), and
+        the value is then where it stopped, above ``above`` and above the optimum's."""
         k = _key(eff)
         with self._lock:
-            if k in self._memo:
-                return self._memo[k][0]
+            got = self._memo.get(k)
+        # (A value given up above a ceiling answers every search with a lower one.)
+        if got is not None and (got[2] is None or (above is not None and above <= got[2])):
+            return got[0]
         pb = self._problem(eff)
-        res = self._solve(pb)
-        mse = res["rmse"] ** 2
-        if pb["q"] is not None:
-            mse *= float(np.average(pb["q"] ** 2, weights=self.weights))  # back to the output's units
+        scale = 1.0 if pb["q"] is None else float(np.average(pb["q"] ** 2, weights=self.weights))
+        res = self._solve(pb, above=None if above is None else math.sqrt(above / scale))
+        mse = res["rmse"] ** 2 * scale  # back to the output's units
         self.evaluations += 1
         with self._lock:
-            self._memo[k] = (mse, list(res["extra"]))
+            self._memo[k] = (mse, list(res["extra"]), above if res["gave_up"] else None)
         return mse
 
     def with_linear(self, eff: Effects) -> Effects:
@@ -579,7 +583,8 @@ class Fitter:
                         e["delay"] = {"delay_s": max(0.0, d0 - group_delay(p))}
                     return e
                 grid = np.log(np.geomspace(bc.lo, bc.hi, max(10, int(round(1.5 * math.log2(bc.hi / bc.lo))))))
-                f, fm = self.along(lp)
+                # (A cutoff whose fit stays worse than the chain without it is given up.)
+                f, fm = self.along(lp, above=j_base)
                 # (Every other cutoff first: the error changes slowly over two grid steps,
                 # a factor 2.5 of the cutoff.)
                 lf, fx = _grid_then_parabola(f, grid, fmany=fm, coarse_first=True)
@@ -615,7 +620,7 @@ class Fitter:
             eff["delay"] = {"delay_s": 0.0}  # the record's sub-sample timing (polished below)
         if "lowpass" in eff and name != "lowpass" and eff["lowpass"]["cutoff_hz"] > 0.4 / self.dt:
             del eff["lowpass"]  # a band-fit nuisance beyond what the fit resolves
-        if self.J(eff) >= j_base * (1 - 1e-4):
+        if self.J(eff, j_base) >= j_base * (1 - 1e-4):
             return self.with_linear(eff)  # its own search found nothing: no polish to pay for
         # The new effect and those it trades off against are polished together (the rest
         # of the chain stays; the chain found is polished as a whole at the end).

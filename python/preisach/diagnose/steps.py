@@ -11,6 +11,7 @@ report. Each step reads the :class:`Run` and moves the :class:`Found` chain.
 """
 from __future__ import annotations
 
+import functools
 import math
 import threading
 import time
@@ -176,13 +177,18 @@ class Floors:
     noise_fit: float
     repeatability: Optional[float]
     ref_score: float
-    hyst_alone: float
+    #: ``hyst_alone``'s fit, waited for when first needed (it runs beside the first round).
+    alone: Callable[[], float]
     nh2: int
     scale: Scale
 
     @property
     def accept(self) -> float:
         return max(self.noise, self.repeatability or 0.0)
+
+    @property
+    def hyst_alone(self) -> float:
+        return self.alone()
 
 
 @dataclass
@@ -339,6 +345,7 @@ def reference(run: Run, ex: Executor) -> tuple[Found, Callable[[], float], int]:
     ref_score, ref_parts = run.score_parts(ref)
     run.say(f"reference (interpolated) holdout RMSE {ref_score:.4g} (baseline {run.base.holdout_rmse:.4g})")
 
+    @functools.cache
     def alone() -> float:
         if fut is None:
             return ref_score
@@ -358,7 +365,7 @@ def _alone(run: Run, eff: Effects, nh2: int) -> float:
 def where(run: Run, found: Found, alone: Callable[[], float],
           nh2: int) -> tuple[Floors, list[dict[str, Any]], dict[str, Any]]:
     """The floors, the residual's localization on every record and its signatures
-    (``alone``: what a finer hysteresis alone achieves, taken last)."""
+    (``alone``: what a finer hysteresis alone achieves, waited for when first needed)."""
     ref, recs = found.cur, run.recs
     floor = float(np.median([noise_floor(r.y - ref.predict(r)) for r in recs]))
     floor_j = noise_floor(run.fitter.y - run.fitter.predict(ref)) ** 2
@@ -378,7 +385,7 @@ def where(run: Run, found: Found, alone: Callable[[], float],
     for f in (run.fitter, run.fine, run.fitter.slow):
         if f is not None:
             f.min_delay = scale.min_delay  # the record's timing fits below it (``Fitter.timing``)
-    return Floors(floor, floor_j, rep_floor, found.score, alone(), nh2, scale), loc, sig
+    return Floors(floor, floor_j, rep_floor, found.score, alone, nh2, scale), loc, sig
 
 
 # -- search ----------------------------------------------------------------------------

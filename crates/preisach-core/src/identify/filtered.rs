@@ -618,6 +618,53 @@ pub struct BehindSolution {
     pub residual: f64,
     /// Weighted RMSE of the chain output against the target.
     pub rmse: f64,
+    /// The fit gave up above [`Stop::above`]: `rmse` is where it stopped, above the
+    /// optimum's.
+    pub gave_up: bool,
+}
+
+/// When [`Behind::solve`] stops.
+#[derive(Debug, Clone, Copy)]
+pub struct Stop {
+    /// Stop when two iterations in a row lower the sum of squares by less than this
+    /// fraction of it.
+    pub tol: f64,
+    pub max_iter: usize,
+    /// Give up a fit that cannot get below this weighted RMSE: once its last ten
+    /// iterations' average decrease, kept up for every iteration
+    /// left, would still leave it above (the conjugate gradients' decrease slows, so
+    /// the extrapolation overstates what is left). A search that compares chains with
+    /// the chain without its effect needs no more of a fit that stays worse.
+    pub above: Option<f64>,
+}
+
+impl Stop {
+    pub fn new(tol: f64, max_iter: usize) -> Self {
+        Stop { tol, max_iter, above: None }
+    }
+}
+
+/// The give-up rule of [`Stop::above`] on the running weighted sum of squares.
+struct Ceiling {
+    sse: f64,
+    past: [f64; Ceiling::WINDOW],
+}
+
+impl Ceiling {
+    const WINDOW: usize = 10;
+
+    /// Records the sum of squares after iteration `it` (from 1; `past` starts filled
+    /// with the starting point's); true when the fit cannot get below the ceiling in
+    /// the `left` iterations that remain.
+    fn hopeless(&mut self, it: usize, sse: f64, left: usize) -> bool {
+        let slot = it % Self::WINDOW;
+        let out = it >= Self::WINDOW && {
+            let rate = (self.past[slot] - sse) / Self::WINDOW as f64;
+            sse - rate.max(0.0) * left as f64 > self.sse
+        };
+        self.past[slot] = sse;
+        out
+    }
 }
 
 /// Extra columns, weights and delay of one solve.
@@ -773,19 +820,25 @@ impl Behind {
     }
 
     /// The unconstrained least-squares optimum of `Σ ω (z − L(B x + Σ a_k pre_k) − Σ b_k post_k)²`
-    /// by preconditioned conjugate gradients (see the module documentation). `tol`: stop
-    /// when two iterations in a row lower the sum of squares by less than this fraction.
+    /// by preconditioned conjugate gradients (see the module documentation), stopped by
+    /// `stop`.
     pub fn solve(
         &mut self,
         z: &[f64],
         lti: &mut Filter,
         terms: &Terms,
-        tol: f64,
-        max_iter: usize,
+        stop: &Stop,
         warm: bool,
     ) -> Result<BehindSolution> {
         self.check_terms(z, terms)?;
+        let Stop { tol, max_iter, above } = *stop;
         check_scalar("tol", tol)?;
+        if let Some(a) = above {
+            check_scalar("above", a)?;
+            if a < 0.0 {
+                return Err(PreisachError::invalid("above", format!("must be >= 0, got {a}")));
+            }
+        }
         let n = self.rows.n_out();
         let nh = self.input.grid.n_q() + 1;
         let (kp, kq) = (terms.pre.len(), terms.post.len());
@@ -915,6 +968,9 @@ impl Behind {
         };
         let (mut best_x, mut best_rz) = (x.clone(), rz);
         let mut quiet = 0;
+        let weight = omega.map_or(n as f64, |w| w.iter().sum());
+        let mut ceiling = above.map(|a| Ceiling { sse: a * a * weight, past: [sse; Ceiling::WINDOW] });
+        let mut gave_up = false;
         while it < max_iter && quiet < 2 && rz > 1e-24 * rz0 {
             normal(&p, &mut ap, rows, lti, &mut s1, &mut s2);
             let pap = dot(&p, &ap);
@@ -932,6 +988,12 @@ impl Behind {
             precond(&r, &mut zv, pre);
             let rz_new = dot(&r, &zv);
             it += 1;
+            if let Some(c) = ceiling.as_mut() {
+                if c.hopeless(it, sse, max_iter - it) {
+                    gave_up = true;
+                    break;
+                }
+            }
             if rz_new.is_nan() || rz_new > 1e4 * rz0 {
                 break;
             }
@@ -961,6 +1023,7 @@ impl Behind {
             iterations: it,
             residual: (rz / rz0).max(0.0).sqrt(),
             rmse,
+            gave_up,
         })
     }
 
@@ -1098,7 +1161,7 @@ pub fn fit_behind(
     // A delay commutes with the other blocks: it delays the hysteresis output.
     let delay = blocks.iter().map(|b| b.delay_s).sum::<f64>() / opts.dt;
     let terms = Terms { omega, pre: &[], post: &[], delay };
-    let sol = b.solve(z, &mut lti, &terms, opts.tol, opts.max_iter, false)?;
+    let sol = b.solve(z, &mut lti, &terms, &Stop::new(opts.tol, opts.max_iter), false)?;
     let (model, _, rmse, projection) = b.project(&sol, z, &mut lti, &terms)?;
     let report = BehindReport {
         iterations: sol.iterations,
