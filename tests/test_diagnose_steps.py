@@ -87,6 +87,56 @@ def test_an_accepted_effect_a_later_fit_left_trivial_is_no_longer_detected():
         assert ("refused" in found.tried["delay"]) == (delay == 0.0)
 
 
+def test_the_discretization_check_fits_at_the_average_its_chain_was_fitted_at(monkeypatch):
+    """The grid is all the check changes: a chain with effects (refitted at the finer
+    average) is checked there, before the refit and again after it when it passes; a
+    chain with none (left as the search fitted it) at the search's average, where the
+    finer hysteresis alone was fitted."""
+    from types import SimpleNamespace
+
+    from preisach.diagnose.effects import FitState
+
+    calls = []
+
+    def finer(run, fl, st0, fitter):
+        calls.append((st0.effects, fitter))
+        sc = 0.3 if fitter == "fine" else 0.4
+        return FitState(None, dict(st0.effects)), sc, np.ones(4) * sc, 0.0
+
+    polished = []
+
+    def polish(run, found):  # the refit lowers the chain's score
+        polished.append(dict(found.cur.effects))
+        if steps._refitted(run, found):
+            found.move(found.cur, 0.45, found.parts * 0.9)
+
+    monkeypatch.setattr(steps, "_finer", finer)
+    monkeypatch.setattr(steps, "_polish_fine", polish)
+    run = SimpleNamespace(candidates=("delay", "discretization"), n_h=40, fine="fine", fitter="search",
+                          base=SimpleNamespace(effects={}), min_shrink=0.1, say=lambda msg: None,
+                          trials=steps.Trials(2))
+    fl = SimpleNamespace(nh2=80, accept=1e-3)
+    a = FitState(None, {"delay": {"delay_s": 1e-4}})
+    try:
+        found = steps.Found(a, 0.5, np.ones(4) * 0.5, accepted=["delay"])
+        steps.refine(run, found, fl)
+        # Checked at the finer average, passed (0.5 -> 0.3), checked again on the refitted chain.
+        assert calls == [(a.effects, "fine"), (a.effects, "fine")] and polished == [a.effects]
+        assert found.accepted == ["delay", "discretization"] and found.score == 0.3
+        calls.clear()
+        none = steps.Found(FitState(None, {}), 0.5, np.ones(4) * 0.5)
+        steps.refine(run, none, fl)
+        assert calls == [({}, "search")]
+        assert none.tried["discretization"]["rmse_after"] == 0.4 and none.accepted == ["discretization"]
+        # A baseline's own effects are refitted at the finer average: so is their check.
+        calls.clear()
+        run.base.effects = {"delay": {"delay_s": 1e-4}}
+        steps.refine(run, steps.Found(a, 0.5, np.ones(4) * 0.5), fl)
+        assert calls[0] == (a.effects, "fine")
+    finally:
+        run.trials.close()
+
+
 def test_an_effect_whose_first_halves_fold_cannot_pass_is_not_fitted_on_the_second():
     """The fold on the first halves is the fit on the first half it explains most of; a
     fold at its search bound or trivial is refused whatever the second halves give (the

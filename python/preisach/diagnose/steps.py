@@ -662,12 +662,19 @@ def search(run: Run, found: Found, fl: Floors) -> None:
 
 
 # -- refine ----------------------------------------------------------------------------
-def _finer(run: Run, fl: Floors, st0: FitState) -> tuple[FitState, float, np.ndarray, float]:
-    """The chain ``st0`` on the finer grid, fitted at the finer average, and its score."""
+def _refitted(run: Run, found: Found) -> bool:
+    """Whether the chain found is refitted at the finer average (it has effects to polish;
+    a chain with none stays as the search fitted it)."""
+    return bool(found.accepted or run.base.effects)
+
+
+def _finer(run: Run, fl: Floors, st0: FitState, fitter: Fitter) -> tuple[FitState, float, np.ndarray, float]:
+    """The chain ``st0`` on the finer grid, fitted by ``fitter`` (at the average the chain
+    itself is fitted at: the grid is all that changes), and its score."""
     t0 = time.perf_counter()
     with warnings.catch_warnings(), run.trials.search():
         warnings.simplefilter("ignore", PreisachWarning)
-        st = run.fine.state(st0.effects, n_h=fl.nh2)
+        st = fitter.state(st0.effects, n_h=fl.nh2)
     sc, parts = run.score_parts(st)
     return st, sc, parts, time.perf_counter() - t0
 
@@ -678,7 +685,7 @@ def _polish_fine(run: Run, found: Found) -> None:
     left as searched when the chain has a mode: each trial of it is a solve behind the
     resonance at the finer average, and the mode's timing is what this refit is for; the
     slow effects are recalibrated across the records later."""
-    if not (found.accepted or run.base.effects):
+    if not _refitted(run, found):
         return
     names = [k for k in found.cur.effects if not (k == "creep" and "vibration" in found.cur.effects)]
     with run.trials.search():
@@ -693,10 +700,13 @@ def _polish_fine(run: Run, found: Found) -> None:
 def refine(run: Run, found: Found, fl: Floors) -> None:
     """The chain found, refitted on the finer average; the discretization check (a finer
     grid with the effects found) runs beside it on the chain before the refit, and is
-    redone on the refitted chain only when it passes."""
+    redone on the refitted chain only when it passes. A chain with no effects is not
+    refitted, and its check is fitted at the search's average (the finer hysteresis
+    alone, fitted already, when the chain is the reference)."""
     disc = "discretization" in run.candidates and fl.nh2 > run.n_h
+    own = run.fine if _refitted(run, found) else run.fitter
     with run.trials.tasks(1) as ex:
-        fut = ex.submit(_finer, run, fl, found.cur) if disc else None
+        fut = ex.submit(_finer, run, fl, found.cur, own) if disc else None
         pre_score, pre_parts = found.score, found.parts
         _polish_fine(run, found)
         if fut is None:
@@ -711,7 +721,7 @@ def refine(run: Run, found: Found, fl: Floors) -> None:
         why = "worsens part of a holdout"
     elif g >= run.min_shrink and pre_score > 1.2 * fl.accept and found.score < pre_score:
         # It passed on the chain before the refit: the same on the refitted chain.
-        st, sc, parts, _ = _finer(run, fl, found.cur)
+        st, sc, parts, _ = _finer(run, fl, found.cur, run.fine)
         g = gain(found.score, sc)
         if g < run.min_shrink:
             why = "no gain on the refitted chain"
