@@ -368,6 +368,18 @@ def test_a_chain_that_cannot_beat_a_ceiling_is_given_up_and_fitted_exactly_when_
     assert f.J(bad) == pytest.approx(exact, rel=2e-6) and f.evaluations == n + 1
     assert f.J(bad, above=ceiling) == f.J(bad) and f.evaluations == n + 1
     assert f.J(good, above=ceiling) == ceiling  # an exact value answers every ceiling
+    # Several chains at once follow the same rule: a value given up above a ceiling is
+    # refitted (in parallel) for a higher one, and reused for a lower one.
+    g = Fitter(rec, N_H, RANGE, stride=2, tol=1e-12)
+    mapped = []
+    fit_all = g.trials.map
+    g.trials.map = lambda fn, items: mapped.append(len(items)) or fit_all(fn, items)
+    given_up = g.Jmany([bad, good], above=ceiling)[0]
+    assert given_up > exact * (1 + 2e-5) and given_up > ceiling and mapped == [2]
+    n = g.evaluations
+    assert g.Jmany([bad], above=ceiling / 2) == [given_up] and g.evaluations == n and mapped[-1] == 0
+    assert g.Jmany([bad, good])[0] == pytest.approx(exact, rel=2e-6) and g.evaluations == n + 1
+    assert mapped[-1] == 1  # the given-up chain among the parallel fits
 
 
 def _drifting_creeping_records():

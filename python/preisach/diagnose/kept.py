@@ -81,9 +81,9 @@ class KeptFitter(Fitter):
 
     def J(self, eff: Effects, above: Optional[float] = None) -> float:
         k = _key(eff)
-        with self._lock:
-            if k in self._memo:
-                return self._memo[k][0]
+        got = self._memoized(k, None)  # (its fits are exact: no ceiling)
+        if got is not None:
+            return got
         mse, e = self._fit(eff)
         self.evaluations += 1
         with self._lock:

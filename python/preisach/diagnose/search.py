@@ -295,9 +295,8 @@ class Fitter:
         self.min_delay = 2.0 * rec.dt
 
     def Jmany(self, effs: Sequence[Effects], above: Optional[float] = None) -> list[float]:
-        """``J`` of several chains (the ones not memoized yet in parallel)."""
-        with self._lock:
-            todo = [e for e in effs if _key(e) not in self._memo]
+        """``J`` of several chains (the ones the memo does not answer, in parallel)."""
+        todo = [e for e in effs if self._memoized(_key(e), above) is None]
         self.trials.map(lambda e: self.J(e, above), todo)
         return [self.J(e, above) for e in effs]
 
@@ -430,11 +429,9 @@ class Fitter:
         chain beats; a fit that cannot get below it gives up (the core's ``above``), and
         the value is then where it stopped, above ``above`` and above the optimum's."""
         k = _key(eff)
-        with self._lock:
-            got = self._memo.get(k)
-        # (A value given up above a ceiling answers every search with a lower one.)
-        if got is not None and (got[2] is None or (above is not None and above <= got[2])):
-            return got[0]
+        got = self._memoized(k, above)
+        if got is not None:
+            return got
         pb = self._problem(eff)
         scale = 1.0 if pb["q"] is None else float(np.average(pb["q"] ** 2, weights=self.weights))
         res = self._solve(pb, above=None if above is None else math.sqrt(above / scale))
@@ -443,6 +440,16 @@ class Fitter:
         with self._lock:
             self._memo[k] = (mse, list(res["extra"]), above if res["gave_up"] else None)
         return mse
+
+    def _memoized(self, k: tuple[Any, ...], above: Optional[float]) -> Optional[float]:
+        """The memoized ``J`` of the chain keyed ``k`` when it answers a search with
+        ceiling ``above``: an exact value answers every search, a value given up above a
+        ceiling every search with one as low."""
+        with self._lock:
+            got = self._memo.get(k)
+        if got is not None and (got[2] is None or (above is not None and above <= got[2])):
+            return got[0]
+        return None
 
     def with_linear(self, eff: Effects) -> Effects:
         """``eff`` with its linear coefficients from the profiled fit."""

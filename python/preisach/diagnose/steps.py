@@ -721,7 +721,7 @@ def refine(run: Run, found: Found, fl: Floors) -> None:
         why = "worsens part of a holdout"
     elif g >= run.min_shrink and pre_score > 1.2 * fl.accept and found.score < pre_score:
         # It passed on the chain before the refit: the same on the refitted chain.
-        st, sc, parts, _ = _finer(run, fl, found.cur, run.fine)
+        st, sc, parts, _ = _finer(run, fl, found.cur, own)
         g = gain(found.score, sc)
         if g < run.min_shrink:
             why = "no gain on the refitted chain"
