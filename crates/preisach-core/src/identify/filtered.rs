@@ -208,7 +208,8 @@ fn push_pair_row(a: &[(u32, f64)], b: &[(u32, f64)], out: &mut Pairs) {
 /// and an averaged row keeps where in the window a step of the input happened (point
 /// decimation moves it to a sample and biases every timing the dynamics carry).
 /// The groups and each sample's group are the same for every session on the input
-/// (shared: [`Behind::fork`]); the windows' mixtures depend on the delay of each solve.
+/// (shared: [`Behind::fork`]); the windows' mixtures depend on the delay of each solve,
+/// and are shared too while two sessions are at the same delay ([`Mixture`]).
 #[derive(Clone)]
 struct SampleRows {
     n_q: usize,
@@ -218,8 +219,36 @@ struct SampleRows {
     /// the same by variable (row i: the groups that see variable i).
     rows: Arc<Pairs>,
     rows_t: Arc<Pairs>,
-    /// Output samples (averaged windows) as mixtures of groups: row k holds (group,
-    /// weights of r_a and r_b); and the same by group (row g: (output sample, weights)).
+    stride: usize,
+    /// The mixtures at the delay of the last solve, and at delay 0 (every session's
+    /// start, and where a search over the delay returns).
+    mixture: Arc<Mixture>,
+    at_zero: Arc<Mixture>,
+    spare: Spare,
+    /// Scratch per group: the values of r_a and r_b.
+    vab: Vec<[f64; 2]>,
+}
+
+/// A mixture's buffers kept for the next delay's build: a session's own (a copy starts
+/// without, and allocates them at its first delay other than 0).
+#[derive(Default)]
+struct Spare(Option<Mixture>);
+
+impl Clone for Spare {
+    fn clone(&self) -> Self {
+        Spare(None)
+    }
+}
+
+/// The output samples (averaged windows) at one delay: read-only once built, so the
+/// sessions at that delay share one copy (on an input recorded with noise, tens of MB
+/// for every problem's sessions).
+#[derive(Clone)]
+struct Mixture {
+    /// Delay (in input samples) the mixture holds.
+    delay: f64,
+    /// Output samples as mixtures of groups: row k holds (group, weights of r_a and
+    /// r_b); and the same by group (row g: (output sample, weights)).
     mix: Pairs,
     mix_t: Pairs,
     /// `B` itself on the output samples (without the offset) and its transpose, when
@@ -227,11 +256,18 @@ struct SampleRows {
     /// groups share most of their variables); empty otherwise.
     direct: Sparse<f64>,
     direct_t: Sparse<f64>,
-    stride: usize,
-    /// Delay (in input samples) the mixture holds.
-    delay: f64,
-    /// Scratch per group: the values of r_a and r_b.
-    vab: Vec<[f64; 2]>,
+}
+
+impl Mixture {
+    fn empty() -> Self {
+        Mixture {
+            delay: f64::NAN,
+            mix: Pairs::new(),
+            mix_t: Pairs::new(),
+            direct: Sparse::new(),
+            direct_t: Sparse::new(),
+        }
+    }
 }
 
 impl SampleRows {
@@ -284,31 +320,48 @@ impl SampleRows {
             lam: Arc::new(lam_of),
             rows: Arc::new(rows),
             rows_t: Arc::new(rows_t),
-            mix: Pairs::new(),
-            mix_t: Pairs::new(),
-            direct: Sparse::new(),
-            direct_t: Sparse::new(),
             stride: stride.max(1),
-            delay: f64::NAN,
+            mixture: Arc::new(Mixture::empty()),
+            at_zero: Arc::new(Mixture::empty()),
+            spare: Spare::default(),
             vab: vec![[0.0; 2]; n_g],
         };
-        sr.set_delay(0.0);
+        let mut zero = Mixture::empty();
+        sr.build_mixture(0.0, &mut zero);
+        sr.at_zero = Arc::new(zero);
+        sr.mixture = Arc::clone(&sr.at_zero);
         sr
     }
 
-    /// Rebuild the output mixtures for the hysteresis output delayed by `delay` input
-    /// samples (linear interpolation between samples, the value at rest before the
-    /// start: what the chain's delay block does to its input, and a delay commutes with
-    /// the linear blocks). O(samples); nothing else changes.
+    /// Hold the output mixtures for the hysteresis output delayed by `delay` input
+    /// samples (see [`SampleRows::build_mixture`]): delay 0's kept from the start, any
+    /// other built anew, in the buffers of the last one this session held alone.
     fn set_delay(&mut self, delay: f64) {
-        if delay == self.delay {
+        if delay == self.mixture.delay {
             return;
         }
-        self.delay = delay;
+        let last = std::mem::replace(&mut self.mixture, Arc::clone(&self.at_zero));
+        if let Ok(m) = Arc::try_unwrap(last) {
+            self.spare.0 = Some(m);
+        }
+        if delay == 0.0 {
+            return;
+        }
+        let mut m = self.spare.0.take().unwrap_or_else(Mixture::empty);
+        self.build_mixture(delay, &mut m);
+        self.mixture = Arc::new(m);
+    }
+
+    /// Build into `m` the output mixtures for the hysteresis output delayed by `delay`
+    /// input samples (linear interpolation between samples, the value at rest before the
+    /// start: what the chain's delay block does to its input, and a delay commutes with
+    /// the linear blocks). O(samples); nothing else changes.
+    fn build_mixture(&self, delay: f64, m: &mut Mixture) {
+        m.delay = delay;
         let s = self.stride;
         let n = self.group.len();
         let inv = 1.0 / s as f64;
-        let mix = &mut self.mix;
+        let mix = &mut m.mix;
         mix.clear();
         let add = |mix: &mut Pairs, start: usize, j: usize, w: f64| {
             if w == 0.0 {
@@ -344,31 +397,31 @@ impl SampleRows {
             }
             mix.end_row();
         }
-        self.mix.transpose(self.vab.len(), &mut self.mix_t);
-        self.build_direct((self.rows.nnz() + self.mix.nnz()) * 20 / 12);
+        m.mix.transpose(self.vab.len(), &mut m.mix_t);
+        self.build_direct(m, (self.rows.nnz() + m.mix.nnz()) * 20 / 12);
     }
 
-    /// Multiply the mixtures out into `B` when it is smaller than its factors (a value
-    /// per entry against a pair, so 12 bytes against 20; the build stops once `B`
+    /// Multiply the mixtures of `m` out into `B` when it is smaller than its factors (a
+    /// value per entry against a pair, so 12 bytes against 20; the build stops once `B`
     /// outgrows that: `limit` entries).
-    fn build_direct(&mut self, limit: usize) {
-        let d = &mut self.direct;
+    fn build_direct(&self, m: &mut Mixture, limit: usize) {
+        let Mixture { mix, direct: d, direct_t, .. } = m;
         d.clear();
-        self.direct_t.clear();
+        direct_t.clear();
         // A window's row has at least the entries of its longest group's: give up early
         // when that already exceeds the limit (windows of one group, a smooth input).
         let rows = &self.rows;
-        let longest = |k: usize| self.mix.row(k).0.iter().map(|&g| rows.row(g as usize).0.len()).max();
-        if (0..self.mix.n_rows()).filter_map(longest).sum::<usize>() > limit {
+        let longest = |k: usize| mix.row(k).0.iter().map(|&g| rows.row(g as usize).0.len()).max();
+        if (0..mix.n_rows()).filter_map(longest).sum::<usize>() > limit {
             return;
         }
         let mut acc = vec![0.0; self.n_q];
         let mut seen = vec![false; self.n_q];
         let mut touched: Vec<u32> = Vec::new();
-        for k in 0..self.mix.n_rows() {
-            let (gs, ws) = self.mix.row(k);
+        for k in 0..mix.n_rows() {
+            let (gs, ws) = mix.row(k);
             for (&g, w) in gs.iter().zip(ws) {
-                let (cols, vals) = self.rows.row(g as usize);
+                let (cols, vals) = rows.row(g as usize);
                 for (&i, v) in cols.iter().zip(vals) {
                     if !seen[i as usize] {
                         seen[i as usize] = true;
@@ -391,12 +444,12 @@ impl SampleRows {
                 return;
             }
         }
-        d.transpose(self.n_q, &mut self.direct_t);
+        d.transpose(self.n_q, direct_t);
     }
 
     /// Whether the products go through `B` itself (see [`SampleRows::build_direct`]).
     fn is_direct(&self) -> bool {
-        self.direct.n_rows() > 0
+        self.mixture.direct.n_rows() > 0
     }
 
     fn n_groups(&self) -> usize {
@@ -404,7 +457,7 @@ impl SampleRows {
     }
 
     fn n_out(&self) -> usize {
-        self.mix.n_rows()
+        self.mixture.mix.n_rows()
     }
 
     /// The values of every group's rows r_a and r_b at `x`.
@@ -416,13 +469,13 @@ impl SampleRows {
     fn forward(&mut self, x: &[f64], h: &mut [f64]) {
         let c = x[self.n_q];
         if self.is_direct() {
-            self.direct.mul(x, h);
+            self.mixture.direct.mul(x, h);
             h.iter_mut().for_each(|o| *o += c);
             return;
         }
         self.group_values(x);
         for (k, o) in h.iter_mut().enumerate() {
-            let (gs, ws) = self.mix.row(k);
+            let (gs, ws) = self.mixture.mix.row(k);
             let mut v = c;
             for (&g, w) in gs.iter().zip(ws) {
                 let a = self.vab[g as usize];
@@ -446,10 +499,10 @@ impl SampleRows {
     fn adjoint(&mut self, v: &[f64], x: &mut [f64]) {
         x[self.n_q] = v.iter().sum();
         if self.is_direct() {
-            self.direct_t.mul(v, &mut x[..self.n_q]);
+            self.mixture.direct_t.mul(v, &mut x[..self.n_q]);
             return;
         }
-        self.mix_t.mul(v, &mut self.vab);
+        self.mixture.mix_t.mul(v, &mut self.vab);
         let vab = &self.vab;
         for (i, o) in x[..self.n_q].iter_mut().enumerate() {
             let (gs, vals) = self.rows_t.row(i);
@@ -481,7 +534,8 @@ impl SampleRows {
     fn gram_products(&self, mut emit: impl FnMut(usize, usize, f64)) {
         let n_g = self.n_groups();
         let mut mom = vec![[0.0f64; 3]; n_g];
-        for (&g, w) in self.mix.col.iter().zip(&self.mix.val) {
+        let mix = &self.mixture.mix;
+        for (&g, w) in mix.col.iter().zip(&mix.val) {
             let m = &mut mom[g as usize];
             m[0] += w[0] * w[0];
             m[1] += w[0] * w[1];
@@ -717,9 +771,10 @@ impl Behind {
     }
 
     /// A session of the same problem for another thread: the staircase groups and rows
-    /// shared, the windows' mixtures and the preconditioner's factorization its own, a
-    /// cold start, the projection shared. It solves bit for bit as a session from
-    /// [`Behind::new`] does, without the rows and Gram matrix built again.
+    /// shared, the windows' mixtures shared until either session moves to another delay,
+    /// the preconditioner's factorization its own, a cold start, the projection shared.
+    /// It solves bit for bit as a session from [`Behind::new`] does, without the rows and
+    /// Gram matrix built again.
     pub fn fork(&self) -> Result<Self> {
         Ok(Behind { rows: self.rows.clone(), pre: self.pre.refactored()?, last: None, input: self.input.clone() })
     }
@@ -1228,11 +1283,9 @@ mod tests {
             let v: Vec<f64> = (0..m).map(|_| rng.range(-1.0, 1.0)).collect();
             let mut outs = Vec::new();
             for direct in [false, true] {
-                if direct {
-                    rows.build_direct(usize::MAX);
-                } else {
-                    rows.build_direct(0);
-                }
+                let mut mixture = (*rows.mixture).clone();
+                rows.build_direct(&mut mixture, if direct { usize::MAX } else { 0 });
+                rows.mixture = Arc::new(mixture);
                 assert_eq!(rows.is_direct(), direct);
                 let mut got = vec![0.0; m];
                 rows.forward(&x, &mut got);
@@ -1252,6 +1305,40 @@ mod tests {
             rows.forward_fine(&x, &mut fine);
             assert!(max_diff(&fine, &h) <= 1e-12 * scale, "case {case}: the rows per sample are off the model");
         }
+    }
+
+    #[test]
+    fn sessions_share_a_delay_s_mixture_and_each_moves_alone() {
+        // Two sessions at one delay hold one mixture; one moving to another delay leaves
+        // the other's products as they were, and any return to delay 0 gives, bit for
+        // bit, what a session that never moved gives.
+        let mut rng = Rng(4242);
+        let grid = Grid::new(0.0, 1.0, 6).unwrap();
+        let u = input(&mut rng, 3000);
+        let (x, _) = signed(&mut rng, &grid, &u);
+        let out = |rows: &mut SampleRows| {
+            let mut h = vec![0.0; rows.n_out()];
+            rows.forward(&x, &mut h);
+            h
+        };
+        let mut fresh = SampleRows::new(&grid, &[], &u, 4);
+        let at_zero = out(&mut fresh);
+        let mut a = fresh.clone();
+        a.set_delay(7.5);
+        let at_delay = out(&mut a);
+        assert!(max_diff(&at_delay, &at_zero) > 0.0);
+        let mut b = a.clone();
+        assert!(Arc::ptr_eq(&a.mixture, &b.mixture));
+        b.set_delay(2.25);
+        assert!(!Arc::ptr_eq(&a.mixture, &b.mixture));
+        assert_eq!(out(&mut a), at_delay);
+        for rows in [&mut a, &mut b] {
+            rows.set_delay(0.0);
+            assert_eq!(out(rows), at_zero);
+            rows.set_delay(7.5);
+            assert_eq!(out(rows), at_delay);
+        }
+        assert_eq!(out(&mut fresh), at_zero);
     }
 
     #[test]
