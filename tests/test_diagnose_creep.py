@@ -157,3 +157,34 @@ def test_creep_columns_are_the_full_rate_response_window_averaged(seed, log_tau_
         np.testing.assert_allclose(col, window_mean(r, k), rtol=0, atol=scale)
         np.testing.assert_allclose(tcol, window_mean(r * t, k), rtol=0, atol=scale * (t0 + t[-1] - t[0] + 1.0))
     assert col.size == t.size // k and _creep_columns(x, rec, tau, k, False, None)[1] is None
+
+
+@pytest.mark.parametrize("none", [0.235, 0.1])
+def test_the_held_out_choice_refines_the_best_time_constant_that_carries_creep(none):
+    """Creep's held-out choice of its time constant (``Fitter.creep_held``, the fits
+    replaced by stand-ins): the grid's time constants that do not fit the training record
+    better score as no creep, here a hair better than the grid's creep chains, while the
+    held-out optimum (0.09 s) lies between grid points. The parabolic steps refine the
+    best time constant that carries creep, and the chain found keeps it when it scores
+    better than no creep (``none`` 0.235), not otherwise (``none`` 0.1)."""
+    from types import SimpleNamespace
+
+    band, amp = (0.03, 1.0), 0.05
+
+    def creep_amp(eff, tau, refine=2):
+        return (amp, 0.9) if band[0] < tau < band[1] else (0.0, 1.0)  # training error 1.0 without creep
+
+    def held(e):
+        if "creep" not in e:
+            return none
+        return 0.2 + 0.6 * (math.log(e["creep"]["taus_s"][0] / 0.09) / math.log(10.0)) ** 2
+
+    fake = SimpleNamespace(ranges={"creep": {"tau": SimpleNamespace(lo=0.005, hi=5.0)}}, slow=None,
+                           J=lambda eff: 1.0, creep_amp=creep_amp,
+                           trials=SimpleNamespace(map=lambda f, xs: [f(x) for x in xs]))
+    got = Fitter.creep_held(fake, {"delay": {"delay_s": 0.0}}, held)["creep"]
+    if none > 0.2:
+        assert got["amplitudes"] == [amp]
+        assert abs(math.log(got["taus_s"][0] / 0.09)) < math.log(1.2), got
+    else:
+        assert got["amplitudes"] == [1e-4], got

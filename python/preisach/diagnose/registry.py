@@ -132,7 +132,8 @@ REGISTRY: dict[str, Effect] = {e.name: e for e in (
            agree=("frequency_hz", 0.03)),
     Effect("creep", "creep", ("taus_s", "amplitudes"), "Fitter.creep_held: a grid of time constants from 5 ms "
            "to 10 record lengths, the amplitude and masses fitted on the training record at each "
-           "(Fitter.creep_amp), the time constant chosen by the chain's cross-fitted error on the held-out records",
+           "(Fitter.creep_amp), the time constant chosen by the chain's cross-fitted error on the held-out records "
+           "(parabolic steps around the best that carries creep)",
            "amplitudes summing to 0.3 % or more, a time constant of 5 ms or more", _creep, slow=True,
            cross_fit=""),
     Effect("drift", "drift", ("gain_per_s",), "Fitter.add: a grid of gains on the slow fitter, the offset "

@@ -720,9 +720,9 @@ class Fitter:
         decade over the range), at each the amplitude and the masses fitted on the training
         record (profiled), the chain scored by ``held`` (its error on the other records;
         ``Fitter.add`` passes the training error when there are none); then parabolic steps
-        on that score around the best. Time constants that do not fit the training record
-        better than no creep score as no creep. The chain's own timing is fitted first
-        (:meth:`timing`)."""
+        on that score around the best time constant that fits the training record better
+        than no creep (the others score as no creep), kept when it scores better than no
+        creep. The chain's own timing is fitted first (:meth:`timing`)."""
         bt = self.ranges["creep"]["tau"]
         slow = self.slow or self
         if "delay" not in eff:
@@ -750,9 +750,13 @@ class Fitter:
             return held(chain(lt)) if amps[lt] > 0 else none
 
         known = dict(zip(grid, self.trials.map(score, grid)))
-        lt, _ = _parabolic_search(score, [], grid[0], grid[-1], refine=2, expand=0, known=known)
-        return chain(lt) if amps[lt] > 0 else dict(eff, creep={"taus_s": [float(math.exp(lt))],
-                                                               "amplitudes": [1e-4], "normalized": True})
+        # The steps refine the best time constant that carries creep (the others score as
+        # no creep: a plateau that, best by a hair, would stop them at the grid's end).
+        real = {x: v for x, v in known.items() if amps[x] > 0}
+        lt, best = _parabolic_search(score, [], min(real), max(real), refine=2, expand=0, known=real)
+        if amps[lt] > 0 and best < none:
+            return chain(lt)
+        return dict(eff, creep={"taus_s": [float(math.exp(lt))], "amplitudes": [1e-4], "normalized": True})
 
     def mode_band(self, eff: Effects, h: Optional[NDArray[np.float64]]) -> Effects:
         """A lightly damped mode: frequency and damping fitted on the error in a band
