@@ -336,12 +336,26 @@ pub(super) fn build_rows_interpolated(grid: &Grid, extrema: &[f64], u: &[f64], y
     rows
 }
 
-/// `out = ca·a + cb·b` for sorted sparse rows (the offset column scales with them).
+/// `out = ca·a + cb·b` for sparse rows sorted by index without repeats (the offset
+/// column scales with them): one pass merging the two.
 pub(crate) fn combine(a: &[(u32, f64)], ca: f64, b: &[(u32, f64)], cb: f64, out: &mut Vec<(u32, f64)>) {
     out.clear();
-    out.extend(a.iter().map(|&(i, v)| (i, ca * v)));
-    out.extend(b.iter().map(|&(i, v)| (i, cb * v)));
-    sort_and_merge(out);
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        let ((ia, va), (ib, vb)) = (a[i], b[j]);
+        if ia == ib {
+            out.push((ia, ca * va + cb * vb));
+            (i, j) = (i + 1, j + 1);
+        } else if ia < ib {
+            out.push((ia, ca * va));
+            i += 1;
+        } else {
+            out.push((ib, cb * vb));
+            j += 1;
+        }
+    }
+    out.extend(a[i..].iter().map(|&(k, v)| (k, ca * v)));
+    out.extend(b[j..].iter().map(|&(k, v)| (k, cb * v)));
 }
 
 /// Everett-coordinate coefficients of a state (stored extrema `t`, current input `cur`):
@@ -421,5 +435,46 @@ pub fn mass_from_everett(i: usize, j: usize, out: &mut Vec<(usize, f64)>) {
     }
     if j > i + 1 {
         out.push((everett_var(j, i + 1), 1.0));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::identify::testing::Rng;
+
+    /// A sparse row sorted by index without repeats, about a third of `n` indices.
+    fn row(rng: &mut Rng, n: u32) -> Vec<(u32, f64)> {
+        let mut out = Vec::new();
+        for i in 0..n {
+            if rng.uniform() < 0.3 {
+                out.push((i, rng.range(-1.0, 1.0)));
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn combine_sums_two_sorted_rows_as_dense_vectors_do() {
+        // Oracle: both rows scattered into dense vectors and summed; rows of any overlap,
+        // either empty, the entries of each side's tail beyond the other's last index.
+        let mut rng = Rng(0x5DEE_CE66_D1CE_4E5B);
+        let mut out = Vec::new();
+        for case in 0..200 {
+            let n = 1 + (rng.uniform() * 40.0) as u32;
+            let (a, b) = (row(&mut rng, n), if case % 7 == 0 { Vec::new() } else { row(&mut rng, n) });
+            let (ca, cb) = (rng.range(-2.0, 2.0), rng.range(-2.0, 2.0));
+            combine(&a, ca, &b, cb, &mut out);
+            let mut dense = vec![None::<f64>; n as usize];
+            for &(i, v) in &a {
+                dense[i as usize] = Some(ca * v);
+            }
+            for &(i, v) in &b {
+                dense[i as usize] = Some(dense[i as usize].map_or(cb * v, |s| s + cb * v));
+            }
+            let want: Vec<(u32, f64)> =
+                dense.iter().enumerate().filter_map(|(i, v)| v.map(|v| (i as u32, v))).collect();
+            assert_eq!(out, want, "case {case}");
+        }
     }
 }
