@@ -55,6 +55,9 @@ R = TypeVar("R")
 CREEP_CAL_TAU_MAX_RECORDS = 10.0
 #: Creep time constants per decade of the grid whose chains the held-out records score.
 CREEP_PER_DECADE = 2
+#: The amplitude of the creep chain ``Fitter.creep_held`` returns when no time constant
+#: beats no creep: a token the registry's rule calls trivial, which keeps the time constant.
+CREEP_TOKEN = 1e-4
 #: The weight of the samples before a fit's start (``Fitter(start=)``).
 PART_FLOOR = 1e-6
 
@@ -728,35 +731,35 @@ class Fitter:
         if "delay" not in eff:
             eff = slow.timing(eff)
         j0 = slow.J(eff)
-        amps: dict[float, float] = {}
+        amps: dict[float, float] = {}  # by log time constant; 0: no better than no creep
 
-        def chain(lt: float) -> Effects:
-            return dict(eff, creep={"taus_s": [float(math.exp(lt))], "amplitudes": [amps[lt]], "normalized": True})
+        def chain(lt: float, amp: float) -> Effects:
+            return dict(eff, creep={"taus_s": [float(math.exp(lt))], "amplitudes": [amp], "normalized": True})
+
+        def fit(lt: float) -> float:
+            """The training error at ``lt``, its amplitude kept in ``amps``."""
+            c, fx = slow.creep_amp(eff, math.exp(lt), refine=1)
+            amps[lt] = c if fx < j0 else 0.0
+            return fx
 
         n = max(3, int(math.ceil(CREEP_PER_DECADE * math.log10(bt.hi / bt.lo))) + 1)
         grid = [float(x) for x in np.log(np.geomspace(bt.lo, bt.hi, n))]
-        fits = self.trials.map(lambda lt: slow.creep_amp(eff, math.exp(lt), refine=1), grid)
-        for lt, (c, fx) in zip(grid, fits):
-            amps[lt] = c if fx < j0 else 0.0
+        fits = self.trials.map(fit, grid)
         if not any(amps.values()):
-            lt = grid[int(np.argmin([fx for _, fx in fits]))]
-            return dict(eff, creep={"taus_s": [float(math.exp(lt))], "amplitudes": [1e-4], "normalized": True})
+            return chain(grid[int(np.argmin(fits))], CREEP_TOKEN)
         none = held(eff)  # (a time constant that does not fit the training record scores as no creep)
 
         def score(lt: float) -> float:
             if lt not in amps:
-                c, fx = slow.creep_amp(eff, math.exp(lt), refine=1)
-                amps[lt] = c if fx < j0 else 0.0
-            return held(chain(lt)) if amps[lt] > 0 else none
+                fit(lt)
+            return held(chain(lt, amps[lt])) if amps[lt] > 0 else none
 
         known = dict(zip(grid, self.trials.map(score, grid)))
         # The steps refine the best time constant that carries creep (the others score as
         # no creep: a plateau that, best by a hair, would stop them at the grid's end).
         real = {x: v for x, v in known.items() if amps[x] > 0}
         lt, best = _parabolic_search(score, [], min(real), max(real), refine=2, expand=0, known=real)
-        if amps[lt] > 0 and best < none:
-            return chain(lt)
-        return dict(eff, creep={"taus_s": [float(math.exp(lt))], "amplitudes": [1e-4], "normalized": True})
+        return chain(lt, amps[lt] if amps[lt] > 0 and best < none else CREEP_TOKEN)
 
     def mode_band(self, eff: Effects, h: Optional[NDArray[np.float64]]) -> Effects:
         """A lightly damped mode: frequency and damping fitted on the error in a band
