@@ -15,7 +15,7 @@ from lti_reference import lsim_reference
 from preisach import PreisachModel
 from preisach.chain import Chain
 from preisach.diagnose import diagnose
-from preisach.diagnose.effects import Record, rmse
+from preisach.diagnose.effects import FitState, Record, rmse
 from preisach.diagnose.search import Fitter, _creep_columns, window_mean
 from preisach.sim import Stage, hysteresis_block
 
@@ -188,3 +188,39 @@ def test_the_held_out_choice_refines_the_best_time_constant_that_carries_creep(n
         assert abs(math.log(got["taus_s"][0] / 0.09)) < math.log(1.2), got
     else:
         assert got["amplitudes"] == [1e-4], got
+
+
+@given(hs.integers(0, 2**32 - 1), hs.sampled_from([(), ("vibration",), ("lowpass", "delay"),
+                                                   ("rate", "vibration", "lowpass", "delay")]),
+       hs.booleans(), hs.booleans(), hs.floats(-2.0, 3.0))
+def test_slow_effects_applied_to_the_output_without_them_are_the_chain(seed, fast, creep, drift, log_tau_ms):
+    """``slow_predict`` (a calibrated chain's creep element and drift applied to its
+    output without them) against the whole chain run sample by sample, on a random
+    hysteresis, random fast blocks and an input that starts off its mean, at an absolute
+    time far from 0; the output without them computed and stored when missing."""
+    from preisach.diagnose.search import slow_predict
+
+    rng = np.random.default_rng(seed)
+    fs = 20e3
+    t = 7.0 + np.arange(3000) / fs
+    u = 0.5 + 0.4 * np.sin(2 * np.pi * 11 * (t - 7.0)) + 0.1 * np.cumsum(rng.standard_normal(t.size)) / 50
+    w = np.triu(rng.uniform(0.0, 1.0, (12, 12)))
+    model = PreisachModel(w / w.sum(), (-0.5, 1.5), rng.uniform(-0.2, 0.2))
+    pool = {"rate": {"gain_s": rng.uniform(1e-4, 1e-3), "tau_s": rng.uniform(1e-4, 1e-2)},
+            "vibration": {"frequency_hz": rng.uniform(300.0, 3e3), "damping": rng.uniform(0.01, 0.3)},
+            "lowpass": {"cutoff_hz": rng.uniform(200.0, 5e3), "order": int(rng.integers(1, 3))},
+            "delay": {"delay_s": rng.uniform(0.0, 1e-3)}}
+    eff = {k: pool[k] for k in fast}
+    if creep:
+        eff["creep"] = {"taus_s": [10.0 ** log_tau_ms * 1e-3], "amplitudes": [rng.uniform(0.0, 0.3)],
+                        "normalized": True}
+    if drift:
+        eff["drift"] = {"gain_per_s": rng.uniform(-0.05, 0.05), "offset": rng.uniform(-1, 1),
+                        "offset_per_s": rng.uniform(-0.1, 0.1)}
+    st = FitState(model, eff)
+    rec = Record("r", t, u, u, 1 / fs)
+    whole = st.predict(rec)
+    outputs: dict = {}
+    np.testing.assert_allclose(slow_predict(st, rec, outputs), whole, rtol=0, atol=1e-10)
+    assert list(outputs) == [id(rec)]  # the output without the slow effects, stored
+    np.testing.assert_allclose(slow_predict(st, rec, outputs), whole, rtol=0, atol=1e-10)

@@ -950,7 +950,7 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
     if creep:
         st = normalized_creep(st)
     eff0 = st.effects
-    pre = FitState(st.model, {k: v for k, v in eff0.items() if k != "drift" and not (k == "creep" and creep)})
+    pre = _without_slow(st)
     full_x: list[NDArray[np.float64]] = []
     windows: list[tuple[int, slice]] = []  # per record: window length, windows in its part
     for rec, sl in data:
@@ -1029,6 +1029,33 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
         c = min(max(float(coef[-1]), 0.0), CREEP_AMP_MAX)
         eff["creep"] = {"taus_s": [float(tau)], "amplitudes": [c], "normalized": True}
     return FitState(st.model, eff, st.train_rmse)
+
+
+def _without_slow(st: FitState) -> FitState:
+    """The chain without the slow effects ``calibrate_slow`` calibrates (its drift, its
+    creep of one element)."""
+    cr = st.effects.get("creep")
+    one = cr is not None and len(cr["taus_s"]) == 1
+    return FitState(st.model, {k: v for k, v in st.effects.items() if k != "drift" and not (k == "creep" and one)})
+
+
+def slow_predict(cal: FitState, rec: Record, outputs: dict[Any, Any]) -> NDArray[np.float64]:
+    """``cal.predict(rec)`` for a chain ``calibrate_slow`` returned, from its output
+    without the slow effects (``outputs``, by ``id(rec)``; computed and stored when
+    missing): a creep element commutes with the other linear blocks (each at rest at the
+    record's start), so it is applied to that output, then the drift. The same output up
+    to rounding, at the cost of a first-order filter instead of the chain."""
+    x = outputs.get(id(rec))
+    if x is None:
+        x = outputs[id(rec)] = _without_slow(cal).predict(rec)
+    eff, y = cal.effects, x
+    cr = eff.get("creep")
+    if cr is not None and len(cr["taus_s"]) == 1:
+        y = _run({"creep": cr}, rec.t, x)
+    if "drift" in eff:
+        d = eff["drift"]
+        y = (1.0 + d["gain_per_s"] * rec.t) * y + d["offset"] + d["offset_per_s"] * rec.t
+    return y
 
 
 def _creep_columns(x: NDArray[np.float64], rec: Record, tau: float, k: int, drift: bool,

@@ -32,7 +32,7 @@ from preisach.diagnose.initial import Starts, own_start
 from preisach.diagnose.ranges import Ranges, ends_at_bound
 from preisach.diagnose.records import RecordLike, check_distinct, holdout_list, load_record, reversals
 from preisach.diagnose.registry import OWN_STEPS, REGISTRY, SLOW_FIRST, Scale, trivial
-from preisach.diagnose.search import Effects, Fitter, Trials, calibrate_slow, less
+from preisach.diagnose.search import Effects, Fitter, Trials, calibrate_slow, less, slow_predict
 from preisach.diagnose.where import localize, noise_floor, repeatability_floor, signatures
 from preisach.model import PreisachModel, PreisachWarning
 
@@ -132,7 +132,7 @@ class Run:
             cal = calibrate_slow(st, [(self.tr, slice(None))] + [(h, hv[1 - k]) for h, hv in zip(self.hos, halves)],
                                  outputs)
             for e, h, hv in zip(errs, self.hos, halves):
-                e[hv[k]] = (cal.predict(h) - h.y)[hv[k]]
+                e[hv[k]] = (slow_predict(cal, h, outputs) - h.y)[hv[k]]
         return self.rest_removed(st, errs)
 
     def other_records_errors(self, st: FitState) -> Errors:
@@ -143,7 +143,7 @@ class Run:
         errs = []
         for h in self.hos:
             others = [(r, slice(None)) for r in self.recs if r is not h]
-            errs.append(calibrate_slow(st, others, outputs).predict(h) - h.y)
+            errs.append(slow_predict(calibrate_slow(st, others, outputs), h, outputs) - h.y)
         return self.rest_removed(st, errs)
 
     def rest_removed(self, st: FitState, errs: Errors) -> Errors:
@@ -367,13 +367,11 @@ def where(run: Run, found: Found, alone: Callable[[], float],
     """The floors, the residual's localization on every record and its signatures
     (``alone``: what a finer hysteresis alone achieves, waited for when first needed)."""
     ref, recs = found.cur, run.recs
-    floor = float(np.median([noise_floor(r.y - ref.predict(r)) for r in recs]))
+    outs = [ref.predict(r) for r in recs]
+    floor = float(np.median([noise_floor(r.y - h) for r, h in zip(recs, outs)]))
     floor_j = noise_floor(run.fitter.y - run.fitter.predict(ref)) ** 2
     loc = _localized(run, {})
-    sig = {}
-    for r in recs:
-        h = ref.predict(r)
-        sig[r.name] = signatures(r.t, r.u, h, r.y - h, r.dt)
+    sig = {r.name: signatures(r.t, r.u, h, r.y - h, r.dt) for r, h in zip(recs, outs)}
     # The floor an effect must beat: the noise, or the difference between repeated records
     # where there are any (what no chain fitted on one record can come below).
     rep_floor = repeatability_floor([(r.u, r.y) for r in recs])
