@@ -55,6 +55,10 @@ R = TypeVar("R")
 CREEP_CAL_TAU_MAX_RECORDS = 10.0
 #: Creep time constants per decade of the grid whose chains the held-out records score.
 CREEP_PER_DECADE = 2
+#: Parabolic steps of creep's held-out choice after its grid: each refines the time
+#: constant the masses are fitted with, which decides how well the chain holds on other
+#: records (docs/method/diagnosis.md, "Creep's time constant from the held-out records").
+CREEP_HELD_STEPS = 3
 #: The amplitude of the creep chain ``Fitter.creep_held`` returns when no time constant
 #: beats no creep: a token the registry's rule calls trivial, which keeps the time constant.
 CREEP_TOKEN = 1e-4
@@ -722,10 +726,11 @@ class Fitter:
         creep) tell them apart. So: time constants on a grid (``CREEP_PER_DECADE`` per
         decade over the range), at each the amplitude and the masses fitted on the training
         record (profiled), the chain scored by ``held`` (its error on the other records;
-        ``Fitter.add`` passes the training error when there are none); then parabolic steps
-        on that score around the best time constant that fits the training record better
-        than no creep (the others score as no creep), kept when it scores better than no
-        creep. The chain's own timing is fitted first (:meth:`timing`)."""
+        ``Fitter.add`` passes the training error when there are none); then
+        ``CREEP_HELD_STEPS`` parabolic steps on that score around the best time constant
+        that fits the training record better than no creep (the others score as no
+        creep), kept when it scores better than no creep. The chain's own timing is
+        fitted first (:meth:`timing`)."""
         bt = self.ranges["creep"]["tau"]
         slow = self.slow or self
         if "delay" not in eff:
@@ -758,7 +763,7 @@ class Fitter:
         # The steps refine the best time constant that carries creep (the others score as
         # no creep: a plateau that, best by a hair, would stop them at the grid's end).
         real = {x: v for x, v in known.items() if amps[x] > 0}
-        lt, best = _parabolic_search(score, [], min(real), max(real), refine=2, expand=0, known=real)
+        lt, best = _parabolic_search(score, [], min(real), max(real), refine=CREEP_HELD_STEPS, expand=0, known=real)
         return chain(lt, amps[lt] if amps[lt] > 0 and best < none else CREEP_TOKEN)
 
     def mode_band(self, eff: Effects, h: Optional[NDArray[np.float64]]) -> Effects:
