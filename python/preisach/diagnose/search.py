@@ -1048,19 +1048,14 @@ def slow_predict(cal: FitState, rec: Record, outputs: dict[Any, Any]) -> NDArray
     """``cal.predict(rec)`` for a chain ``calibrate_slow`` returned, from its output
     without the slow effects (``outputs``, by ``id(rec)``; computed and stored when
     missing): a creep element commutes with the other linear blocks (each at rest at the
-    record's start), so it is applied to that output, then the drift. The same output up
-    to rounding, at the cost of a first-order filter instead of the chain."""
+    record's start), so the slow blocks run on that output (the creep, then the drift).
+    The same output up to rounding, at the cost of a first-order filter instead of the
+    chain."""
+    fast = _without_slow(cal)
     x = outputs.get(id(rec))
     if x is None:
-        x = outputs[id(rec)] = _without_slow(cal).predict(rec)
-    eff, y = cal.effects, x
-    cr = eff.get("creep")
-    if cr is not None and len(cr["taus_s"]) == 1:
-        y = _run({"creep": cr}, rec.t, x)
-    if "drift" in eff:
-        d = eff["drift"]
-        y = (1.0 + d["gain_per_s"] * rec.t) * y + d["offset"] + d["offset_per_s"] * rec.t
-    return y
+        x = outputs[id(rec)] = fast.predict(rec)
+    return _run({k: v for k, v in cal.effects.items() if k not in fast.effects}, rec.t, x)
 
 
 def _creep_columns(x: NDArray[np.float64], rec: Record, tau: float, k: int, drift: bool,
