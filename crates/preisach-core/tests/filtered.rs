@@ -241,6 +241,18 @@ fn projection_is_the_plain_fit_of_the_optimum_output() {
     }
 }
 
+/// A random stable pole and its residue: real or complex, fast or slow against the
+/// sample period.
+fn random_pole(rng: &mut Rng) -> (C, C) {
+    let re = -(10f64).powf(rng.range(0.5, 4.5));
+    if rng.uniform() < 0.5 {
+        (C::new(re, 0.0), C::new(rng.range(-2.0, 2.0) * -re, 0.0))
+    } else {
+        let im = -re * rng.range(0.5, 50.0);
+        (C::new(re, im), C::new(rng.range(-1.0, 1.0) * im, rng.range(-1.0, 1.0) * im))
+    }
+}
+
 /// Random stable sections in series: real and complex poles (several in a section, as
 /// a creep of several elements or a higher-order low-pass gives), direct terms, fast and
 /// slow against the sample period.
@@ -249,17 +261,7 @@ fn random_sections(rng: &mut Rng) -> Vec<Section> {
     (0..n_sec)
         .map(|_| {
             let n_p = (rng.next_u64() % 4) as usize;
-            let terms: Vec<(C, C)> = (0..n_p)
-                .map(|_| {
-                    let re = -(10f64).powf(rng.range(0.5, 4.5));
-                    if rng.uniform() < 0.5 {
-                        (C::new(re, 0.0), C::new(rng.range(-2.0, 2.0) * -re, 0.0))
-                    } else {
-                        let im = -re * rng.range(0.5, 50.0);
-                        (C::new(re, im), C::new(rng.range(-1.0, 1.0) * im, rng.range(-1.0, 1.0) * im))
-                    }
-                })
-                .collect();
+            let terms: Vec<(C, C)> = (0..n_p).map(|_| random_pole(rng)).collect();
             Section::new(rng.range(-0.5, 1.5), terms).unwrap()
         })
         .collect()
@@ -316,6 +318,49 @@ fn adjoint_is_the_transpose_of_the_record_pass() {
             let want = dot(c, &w);
             assert!((ltw[j] - want).abs() <= 1e-12 * scale * n as f64, "case {case}, j={j}: {} vs {want}", ltw[j]);
         }
+    }
+}
+
+/// Two or three sections of one pole each (a mode, a creep element, a low-pass): the
+/// shape the record passes run side by side.
+fn one_pole_sections(rng: &mut Rng) -> Vec<Section> {
+    let n_sec = 2 + (rng.next_u64() % 2) as usize;
+    (0..n_sec).map(|_| Section::new(rng.range(-0.5, 1.5), vec![random_pole(rng)]).unwrap()).collect()
+}
+
+#[test]
+fn passes_of_one_pole_sections_are_the_sections_in_series_bit_for_bit() {
+    let mut rng = Rng::new(31);
+    for case in 0..60 {
+        let sections = one_pole_sections(&mut rng);
+        let d = DISCRETIZATIONS[case % 3];
+        let n = [1, 2, 3, 257, 4000][case % 5];
+        let x: Vec<f64> = (0..n).map(|_| rng.range(-3.0, 3.0)).collect();
+        let each = |k: usize| Filter::of(std::slice::from_ref(&sections[k]), 1e-4, d);
+        let mut l = Filter::of(&sections, 1e-4, d);
+        let mut y = vec![f64::NAN; n];
+        l.apply(&x, &mut y);
+        let mut want = x.clone();
+        for k in 0..sections.len() {
+            let input = want.clone();
+            each(k).apply(&input, &mut want);
+        }
+        assert_eq!(y, want, "case {case}: {} sections, {d:?}, {n} samples", sections.len());
+        // The record pass leaves the state the per-sample recursion reaches.
+        let mut stepped = Filter::of(&sections, 1e-4, d);
+        x.iter().for_each(|&v| {
+            stepped.step(v);
+        });
+        assert_eq!(l.state(), stepped.state(), "case {case}: the state at the record's end");
+        // The adjoint: the sections' adjoints in reverse order.
+        let mut g = vec![f64::NAN; n];
+        l.adjoint(&x, &mut g);
+        let mut want = x.clone();
+        for k in (0..sections.len()).rev() {
+            let input = want.clone();
+            each(k).adjoint(&input, &mut want);
+        }
+        assert_eq!(g, want, "case {case}: the adjoint, {} sections, {d:?}, {n} samples", sections.len());
     }
 }
 

@@ -426,6 +426,11 @@ impl Filter {
             y.copy_from_slice(&x[..n]);
             return;
         }
+        match (self.spans.len(), self.one_pole_each()) {
+            (2, true) => return self.apply_fused::<2>(&x[..n], y),
+            (3, true) => return self.apply_fused::<3>(&x[..n], y),
+            _ => {}
+        }
         for k in 0..self.spans.len() {
             // A section's input: the record, then the previous section's output.
             if k > 0 {
@@ -443,11 +448,77 @@ impl Filter {
         self.settled = true;
     }
 
+    /// Whether every section has one pole (a mode, a creep element, a low-pass of order
+    /// one or two): the record passes then run the sections side by side.
+    fn one_pole_each(&self) -> bool {
+        self.spans.iter().all(|&(s, e, _)| e == s + 1)
+    }
+
+    /// The poles and direct terms of `N` sections of one pole each.
+    fn fused<const N: usize>(&self) -> ([Pole; N], [f64; N]) {
+        (std::array::from_fn(|k| self.poles[self.spans[k].0]), std::array::from_fn(|k| self.spans[k].2))
+    }
+
+    /// [`Filter::apply`] for `N` sections of one pole each: one pass over the record, a
+    /// sample through every section in turn ([`Filter::advance`]'s operations in its
+    /// order, so bit for bit the same), the states in registers. The sections' recursions
+    /// then overlap instead of each waiting for the whole record's pass of the last.
+    fn apply_fused<const N: usize>(&mut self, x: &[f64], y: &mut [f64]) {
+        let (f, d) = self.fused::<N>();
+        let mut z = [C::new(0.0, 0.0); N];
+        let mut prev = [0.0; N];
+        let mut v = x[0];
+        for k in 0..N {
+            prev[k] = v;
+            let mut out = d[k] * v;
+            z[k] = f[k].init * v;
+            out += (f[k].g * z[k]).re;
+            v = out;
+        }
+        y[0] = v;
+        for (o, &xn) in y[1..].iter_mut().zip(&x[1..]) {
+            let mut v = xn;
+            for k in 0..N {
+                let mut out = d[k] * v;
+                z[k] = f[k].a * z[k] + f[k].b0 * prev[k] + f[k].b1 * v;
+                out += (f[k].g * z[k]).re;
+                prev[k] = v;
+                v = out;
+            }
+            *o = v;
+        }
+        for (k, &(s, _, _)) in self.spans.iter().enumerate() {
+            self.z[s] = z[k];
+            self.prev[k] = prev[k];
+        }
+        self.settled = true;
+    }
+
+    /// [`Filter::adjoint`] for `N` sections of one pole each: one pass backwards in time,
+    /// the sections' adjoints side by side in reverse order (each pole's operations in
+    /// the order of the pass per section).
+    fn adjoint_fused<const N: usize>(&self, w: &[f64], x: &mut [f64]) {
+        let (f, d) = self.fused::<N>();
+        let mut gn = [C::new(0.0, 0.0); N];
+        for (o, &wm) in x[1..].iter_mut().zip(&w[1..]).rev() {
+            *o = back_sample(&f, &d, &mut gn, wm, |p| p.b1);
+        }
+        x[0] = back_sample(&f, &d, &mut gn, w[0], |p| p.init);
+    }
+
     /// `x = Lᵀ w`: the exact adjoint of [`Filter::apply`] (the at-rest start included),
     /// the sections' adjoints in reverse order, each pole backwards in time.
     pub fn adjoint(&mut self, w: &[f64], x: &mut [f64]) {
         let n = w.len().min(x.len());
         let x = &mut x[..n];
+        self.settled = false;
+        if n > 0 {
+            match (self.spans.len(), self.one_pole_each()) {
+                (2, true) => return self.adjoint_fused::<2>(&w[..n], x),
+                (3, true) => return self.adjoint_fused::<3>(&w[..n], x),
+                _ => {}
+            }
+        }
         x.copy_from_slice(&w[..n]);
         // G[m] = Σ_{k >= m} a^{k−m} g w[k]; x[m] gets b1 G[m] (m >= 1), b0 G[m+1]
         // (m <= n−2) and init G[0] (m = 0).
@@ -463,8 +534,30 @@ impl Filter {
                 f.run_adjoint(&self.buf, x);
             }
         }
-        self.settled = false;
     }
+}
+
+/// One sample of [`Filter::adjoint_fused`]: `v` through the sections' adjoints in
+/// reverse order, `gn` their states; `now` gives a pole's coefficient of the sample's own
+/// term (`b1`, or `init` at the record's first sample, the at-rest start).
+#[inline(always)]
+fn back_sample<const N: usize>(
+    f: &[Pole; N],
+    d: &[f64; N],
+    gn: &mut [C; N],
+    mut v: f64,
+    now: impl Fn(&Pole) -> C,
+) -> f64 {
+    for k in (0..N).rev() {
+        let gm = f[k].g * v + f[k].a * gn[k];
+        let mut t = f[k].b0 * gn[k];
+        t += now(&f[k]) * gm;
+        let mut out = d[k] * v;
+        out += t.re;
+        gn[k] = gm;
+        v = out;
+    }
+    v
 }
 
 /// Largest delay accepted, in samples (keeps the ring buffer at most 128 MB).
