@@ -3,7 +3,8 @@
 //! 2 s of 100 kHz input (a sine of growing amplitude with a slower one on top, small
 //! noise) through a smooth density (n_h = 40), then a lightly damped mode (700 Hz,
 //! ζ = 0.02) and creep, noisy output; the fit on windows of 8 samples (25 000 of them).
-//! Timed: building the problem (`new`), a cold solve, a profile of five neighbouring
+//! Timed: building the problem (`new`), the chain's record pass and its adjoint on the
+//! windows (`passes`, a conjugate-gradient iteration's), a cold solve, a profile of five neighbouring
 //! chains warm-started one from the other (the mode's frequency stepped by 0.5 %, as a
 //! line search moves it), the masses' projection (`project`, the plain one polished;
 //! `project_tie`, the diagnosis's, with its smoothness term) of one solution, and the
@@ -69,6 +70,15 @@ fn behind(c: &mut Criterion) {
     g.bench_function("new", |b| b.iter(|| black_box(Behind::new(&u, N_H, range, STRIDE).unwrap().n_samples())));
     let mut fit = Behind::new(&u, N_H, range, STRIDE).unwrap();
     let mut lti = Filter::cascade(&chain(700.0), dt, Discretization::Foh);
+    // The chain's record pass and its adjoint on the windows (every iteration's).
+    let (mut y, mut back) = (vec![0.0; z.len()], vec![0.0; z.len()]);
+    g.bench_function("passes", |b| {
+        b.iter(|| {
+            lti.apply(&z, &mut y);
+            lti.adjoint(&y, &mut back);
+            black_box(back[0])
+        })
+    });
     g.bench_function("solve_cold", |b| {
         b.iter(|| black_box(fit.solve(&z, &mut lti, &terms, &Stop::new(tol, 300), false).unwrap().rmse))
     });
