@@ -413,7 +413,8 @@ impl Filter {
     /// `y = L x` over a record, starting at rest with `x[0]`: section by section, each
     /// pole's recursion over the whole record (its state stays in registers; a pass per
     /// sample through every pole waits on memory), summed per sample in the order of
-    /// [`Filter::step`], so bit for bit its output. Leaves the filter settled at the
+    /// [`Filter::step`], so bit for bit its output; two or three sections of one pole
+    /// each run side by side (`Filter::apply_fused`). Leaves the filter settled at the
     /// record's end.
     pub fn apply(&mut self, x: &[f64], y: &mut [f64]) {
         self.reset();
@@ -507,7 +508,8 @@ impl Filter {
     }
 
     /// `x = Lᵀ w`: the exact adjoint of [`Filter::apply`] (the at-rest start included),
-    /// the sections' adjoints in reverse order, each pole backwards in time.
+    /// the sections' adjoints in reverse order, each pole backwards in time (two or three
+    /// sections of one pole each side by side, `Filter::adjoint_fused`).
     pub fn adjoint(&mut self, w: &[f64], x: &mut [f64]) {
         let n = w.len().min(x.len());
         let x = &mut x[..n];
