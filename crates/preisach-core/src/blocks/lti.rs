@@ -460,23 +460,16 @@ impl Filter {
         (std::array::from_fn(|k| self.poles[self.spans[k].0]), std::array::from_fn(|k| self.spans[k].2))
     }
 
-    /// [`Filter::apply`] for `N` sections of one pole each: one pass over the record, a
-    /// sample through every section in turn ([`Filter::advance`]'s operations in its
-    /// order, so bit for bit the same), the states in registers. The sections' recursions
-    /// then overlap instead of each waiting for the whole record's pass of the last.
+    /// [`Filter::apply`] for `N` sections of one pole each: settled on the first sample,
+    /// then one pass over the record, a sample through every section in turn
+    /// ([`Filter::advance`]'s operations in its order, so bit for bit the same), the
+    /// states in registers. The sections' recursions then overlap instead of each
+    /// waiting for the whole record's pass of the last.
     fn apply_fused<const N: usize>(&mut self, x: &[f64], y: &mut [f64]) {
         let (f, d) = self.fused::<N>();
-        let mut z = [C::new(0.0, 0.0); N];
-        let mut prev = [0.0; N];
-        let mut v = x[0];
-        for k in 0..N {
-            prev[k] = v;
-            let mut out = d[k] * v;
-            z[k] = f[k].init * v;
-            out += (f[k].g * z[k]).re;
-            v = out;
-        }
-        y[0] = v;
+        y[0] = self.settle(x[0]);
+        let mut z: [C; N] = std::array::from_fn(|k| self.z[self.spans[k].0]);
+        let mut prev: [f64; N] = std::array::from_fn(|k| self.prev[k]);
         for (o, &xn) in y[1..].iter_mut().zip(&x[1..]) {
             let mut v = xn;
             for k in 0..N {
@@ -492,7 +485,6 @@ impl Filter {
             self.z[s] = z[k];
             self.prev[k] = prev[k];
         }
-        self.settled = true;
     }
 
     /// [`Filter::adjoint`] for `N` sections of one pole each: one pass backwards in time,
