@@ -948,10 +948,26 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
     solution is that of the full-rate ones up to the noise). ``outputs``: the records'
     ``x`` by ``id(record)`` and their creep columns (``_creep_columns``), computed here
     when missing and stored (the folds of one chain share them)."""
+    return _slow_fit(st, data, outputs, level=False)[0]
+
+
+def level_calibrated(st: FitState, data: list[tuple[Record, slice]]) -> tuple[FitState, float]:
+    """``calibrate_slow`` of a chain with drift and creep, its level and scale free as
+    well (columns ``x`` and 1): the slow effects a record's masses would carry if they
+    were fitted with them, and the scale those masses lack (0 when they carry the creep
+    the records show). A proposal for the pair's search (:mod:`preisach.diagnose.slowpair`),
+    never a score: the free scale and level adjust the chain to the records."""
+    return _slow_fit(st, data, {}, level=True)
+
+
+def _slow_fit(st: FitState, data: list[tuple[Record, slice]], outputs: Optional[dict[Any, Any]],
+              level: bool) -> tuple[FitState, float]:
+    """``calibrate_slow`` (``level``: with the scale and level free, and the scale
+    coefficient returned; 0 without)."""
     # A creep of several elements (a given baseline chain's) stays as it is.
     creep = "creep" in st.effects and len(st.effects["creep"]["taus_s"]) == 1
     if "drift" not in st.effects and not creep:
-        return st
+        return st, 0.0
     if creep:
         st = normalized_creep(st)
     eff0 = st.effects
@@ -978,6 +994,8 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
     x, t, y = averaged(full_x), averaged(times), averaged([rec.y for rec, _ in data])
     drift = "drift" in eff0
     base = [averaged([xf * tf for xf, tf in zip(full_x, times)]), t] if drift else []
+    if level:
+        base += [x, np.ones_like(x)]
     target = y - x - (eff0["drift"]["offset"] if drift else 0.0)
 
     def solve(extra: list[NDArray[np.float64]]) -> tuple[NDArray[np.float64], float]:
@@ -1007,7 +1025,7 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
                 if A.shape[1]:
                     sub, *_ = np.linalg.lstsq(A, r0, rcond=None)
                     sse = float(np.sum((A @ sub - r0) ** 2))
-                    coef = np.concatenate([sub, [cb, 0.0]])
+                    coef = np.concatenate([sub, [cb, 0.0] if drift else [cb]])
                 else:
                     sse = float(np.sum(r0 ** 2))
                     coef = np.array([cb])
@@ -1025,7 +1043,7 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
     else:
         coef, _ = solve([])
     if not np.isfinite(coef).all():
-        return st
+        return st, 0.0
     eff = {k: dict(v) for k, v in eff0.items()}
     if drift:
         eff["drift"] = {"gain_per_s": float(coef[0]), "offset": float(eff0["drift"]["offset"]),
@@ -1033,7 +1051,7 @@ def calibrate_slow(st: FitState, data: list[tuple[Record, slice]],
     if tau is not None:
         c = min(max(float(coef[-1]), 0.0), CREEP_AMP_MAX)
         eff["creep"] = {"taus_s": [float(tau)], "amplitudes": [c], "normalized": True}
-    return FitState(st.model, eff, st.train_rmse)
+    return FitState(st.model, eff, st.train_rmse), (float(coef[2 if drift else 0]) if level else 0.0)
 
 
 def _without_slow(st: FitState) -> FitState:

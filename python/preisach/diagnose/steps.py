@@ -25,7 +25,7 @@ import numpy as np
 
 from preisach.chain import Chain, load
 from preisach.diagnose import crossfit as cf
-from preisach.diagnose import kept, lag, rest, sessions
+from preisach.diagnose import kept, lag, rest, sessions, slowpair
 from preisach.diagnose.crossfit import holdout_delay
 from preisach.diagnose.effects import CANDIDATES, FitState, Record, rmse
 from preisach.diagnose.initial import Starts, own_start
@@ -105,6 +105,11 @@ class Run:
     @property
     def halves(self) -> list[tuple[slice, slice]]:
         return [cf.halves(h) for h in self.hos]
+
+    @property
+    def slow_folds(self) -> list[list[tuple[Record, slice]]]:
+        """The two folds' data: the training record whole and one half of each holdout."""
+        return [[(self.tr, slice(None))] + [(h, hv[k]) for h, hv in zip(self.hos, self.halves)] for k in (0, 1)]
 
     def holdout_errors(self, st: FitState) -> Errors:
         """Errors on each holdout. A chain with drift or creep has them recalibrated
@@ -404,6 +409,8 @@ def fit_round(run: Run, found: Found, fl: Floors, todo: list[str], rnd: int) -> 
         held = Held(run, fitter)
         with trials.search():
             eff = REGISTRY[c].fit(fitter, base, held=held)
+            if run.hos and slowpair.applies(base, c):
+                eff, held = slow_pair(run, fl, c, eff, j_cur)
             st = fitter.state(eff)
         sc, parts = run.score_parts(st)
         if held.seen:
@@ -429,6 +436,19 @@ def fit_round(run: Run, found: Found, fl: Floors, todo: list[str], rnd: int) -> 
         if c in plain:
             found.tried[c]["plain"] = plain[c]
     return results
+
+
+def slow_pair(run: Run, fl: Floors, c: str, eff: Effects, j_cur: float) -> tuple[Effects, Held]:
+    """Candidate ``c`` (its own fit ``eff``) completing creep beside a drift: the pair
+    fitted across records (:mod:`preisach.diagnose.slowpair`) among the chains that fit
+    the training record within ``slowpair.TRAIN_SLACK`` of the chain's (MSE ``j_cur``),
+    judged among its own chains (not the probes of creep's grid)."""
+    fitter = run.fitter
+    held = Held(run, fitter)
+    j_max = j_cur + slowpair.TRAIN_SLACK * max(j_cur - fl.noise_fit, 0.0)
+    eff = slowpair.best(fitter, eff, c, run.slow_folds, held, lambda e: run.score(fitter.state(e)),
+                        run.trials, j_max, run.min_shrink)
+    return eff, held
 
 
 class Held:
@@ -504,7 +524,7 @@ def refusal(run: Run, found: Found, fl: Floors, c: str, res: Result, rnd: int,
         return "improvement below half the noise (or repeatability) floor"
     if sc >= fl.hyst_alone:
         return "no better than a finer hysteresis alone"
-    if found.tried[c]["train_gain"] <= 0:
+    if found.tried[c]["train_gain"] <= (-slowpair.TRAIN_SLACK if slowpair.applies(found.cur.effects, c) else 0.0):
         return "it does not fit the training record better"
     if rnd > 0 and not strong and np.any(parts > found.parts * 1.05 + 1e-12) \
             and not (REGISTRY[c].slow and g >= 2 * run.min_shrink):
@@ -515,9 +535,20 @@ def refusal(run: Run, found: Found, fl: Floors, c: str, res: Result, rnd: int,
         return "trivial parameters"
     if ends_at_bound(c, st.effects[c], run.fitter.ranges):
         return "at its search bound: " + "; ".join(ends_at_bound(c, st.effects[c], run.fitter.ranges))
+    if slowpair.applies(found.cur.effects, c) and (bounds := _pair_at_bound(run, c, st)):
+        return "at its search bound once calibrated on every record: " + bounds
     if c == "lowpass" and lag.is_timing(run.score, st, sc, run.min_shrink, fl.accept, fl.scale.min_delay):
         return lag.TIMING
     return held_out_evidence(run, found, fl, c, st, sc, rival)
+
+
+def _pair_at_bound(run: Run, c: str, st: FitState) -> str:
+    """The pair is chosen across records and saved calibrated on every record, so it must
+    hold within its ranges there too (a creep of ten record lengths at the largest
+    amplitude stands in for the records' own levels, a session's offset): the bounds
+    ``c`` ends at once calibrated so, or ``""``."""
+    cal = calibrate_slow(st, [(r, slice(None)) for r in run.recs])
+    return "; ".join(ends_at_bound(c, cal.effects[c], run.fitter.ranges)) if c in cal.effects else ""
 
 
 def accept(run: Run, found: Found, fl: Floors, results: dict[str, Result], rnd: int) -> Optional[str]:
