@@ -14,8 +14,8 @@ free as well (:func:`preisach.diagnose.search.level_calibrated`), then the masse
 refitted on the training record with them. At the pair the records show, the
 calibration returns the time constant the masses were fitted with and no scale (the
 masses lack none). Those two mismatches are driven to zero by Broyden's method on the
-time constant (in log units) and the amplitude: a plain alternation creeps towards the
-pair by a fraction of the distance per step, as the masses take up most of each change.
+time constant (in log units) and the amplitude: a plain alternation oscillates in the
+amplitude and creeps in the time constant, as the masses take up part of each change.
 Each fold's chains are proposals that the caller's held-out score chooses among, judged
 cross-fitted (a fold's chain scores best on the halves it was calibrated on, so it is
 judged on the others).
