@@ -35,8 +35,6 @@ from preisach.diagnose.search import Effects, Fitter, Trials, less, level_calibr
 STEPS = 4
 #: The amplitude's unit in the pair's steps (the time constant's is a factor e).
 C_UNIT = 0.05
-#: Creep amplitude the alternation starts from when the chain has no creep yet.
-START_AMP = 1e-4
 #: How much worse (a share of the training error above the noise) the pair may fit the
 #: training record than the chain it is added to: the record does not tell the pair
 #: apart, so its error is flat along the valley up to the masses' fit.
@@ -105,8 +103,6 @@ def best(fitter: Fitter, eff: Effects, name: str, folds: list[list[tuple[Record,
     with creep is credited only with what it adds to the creep the pair moved: the best
     proposal is kept when it beats itself without the drift by ``min_shrink`` (``score``:
     a chain's holdout RMSE, not remembered); else ``eff``."""
-    if "creep" not in eff:
-        eff = dict(eff, creep={"taus_s": [1.0], "amplitudes": [START_AMP], "normalized": True})
     props = [c for cs in trials.map(lambda d: proposals(fitter, eff, d), folds) for c in cs]
     chains = [eff] + [c for c in props if fitter.J(c) <= j_max]
     scores = trials.map(held, chains)

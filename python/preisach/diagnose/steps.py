@@ -132,10 +132,9 @@ class Run:
             return self.rest_removed(st, [st.predict(h) - h.y for h in self.hos])
         errs = [np.empty(h.y.size) for h in self.hos]
         outputs: dict[Any, Any] = {}
-        halves = self.halves
+        halves, folds = self.halves, self.slow_folds
         for k in (0, 1):
-            cal = calibrate_slow(st, [(self.tr, slice(None))] + [(h, hv[1 - k]) for h, hv in zip(self.hos, halves)],
-                                 outputs)
+            cal = calibrate_slow(st, folds[1 - k], outputs)
             for e, h, hv in zip(errs, self.hos, halves):
                 e[hv[k]] = (slow_predict(cal, h, outputs) - h.y)[hv[k]]
         return self.rest_removed(st, errs)
@@ -524,7 +523,8 @@ def refusal(run: Run, found: Found, fl: Floors, c: str, res: Result, rnd: int,
         return "improvement below half the noise (or repeatability) floor"
     if sc >= fl.hyst_alone:
         return "no better than a finer hysteresis alone"
-    if found.tried[c]["train_gain"] <= (-slowpair.TRAIN_SLACK if slowpair.applies(found.cur.effects, c) else 0.0):
+    pair = slowpair.applies(found.cur.effects, c)
+    if found.tried[c]["train_gain"] <= (-slowpair.TRAIN_SLACK if pair else 0.0):
         return "it does not fit the training record better"
     if rnd > 0 and not strong and np.any(parts > found.parts * 1.05 + 1e-12) \
             and not (REGISTRY[c].slow and g >= 2 * run.min_shrink):
@@ -535,7 +535,7 @@ def refusal(run: Run, found: Found, fl: Floors, c: str, res: Result, rnd: int,
         return "trivial parameters"
     if ends_at_bound(c, st.effects[c], run.fitter.ranges):
         return "at its search bound: " + "; ".join(ends_at_bound(c, st.effects[c], run.fitter.ranges))
-    if slowpair.applies(found.cur.effects, c) and (bounds := _pair_at_bound(run, c, st)):
+    if pair and (bounds := _pair_at_bound(run, c, st)):
         return "at its search bound once calibrated on every record: " + bounds
     if c == "lowpass" and lag.is_timing(run.score, st, sc, run.min_shrink, fl.accept, fl.scale.min_delay):
         return lag.TIMING
