@@ -78,12 +78,19 @@ def run(n_per_class: int = 3, seed: int = 1, fs: float = 50e3, verbose: bool = T
             true_delay = delay_seen(st["params"], fs) if "delay" in st["params"] else None
             results.append({"blind_ref": rr, "truth": cls, "params": st["params"], "true_delay_s": true_delay,
                             "found": found, "dominant": rep.dominant_effect,
+                            "at_bound": {e["name"]: e["at_bound"] for e in rep.effects if e["at_bound"]},
                             "found_params": {e["name"]: e["params"] for e in rep.effects if e["detected"]},
                             "blind_before": rb, "blind_after": ra, "seconds": el})
             if verbose:
-                print(f"<!-- stage {k}: truth={cls or ('none',)} found={found} blind {rb:.4g}->{ra:.4g} ({el:.1f}s) -->",
-                      file=sys.stderr, flush=True)
+                print(f"<!-- stage {k}: truth={cls or ('none',)} found={found} blind {rb:.4g}->{ra:.4g} ({el:.1f}s)"
+                      f"{_detected_at_bound(results[-1])} -->", file=sys.stderr, flush=True)
     return summarize(results, verbose)
+
+
+def _detected_at_bound(r: dict[str, Any]) -> str:
+    """The per-stage line's note of detected effects at a search bound (none should be)."""
+    hit = {k: v for k, v in r["at_bound"].items() if k in r["found"]}
+    return f" detected at a bound: {hit}" if hit else ""
 
 
 def summarize(results: list[dict[str, Any]], verbose: bool = True) -> dict[str, Any]:
@@ -211,7 +218,8 @@ def run_rig(n_per_class: int = 2, seed: int = 1, verbose: bool = True,
             results.append(r)
             if verbose:
                 print(f"<!-- rig {name} #{i}: truth={r['truth'] or ('none',)} found={r['found']} "
-                      f"blind {r['blind_ref']:.4g}->{r['blind_after']:.4g} ({el:.1f}s) -->", file=sys.stderr, flush=True)
+                      f"blind {r['blind_ref']:.4g}->{r['blind_after']:.4g} ({el:.1f}s){_detected_at_bound(r)} -->",
+                      file=sys.stderr, flush=True)
     if verbose:
         summarize_rig(results)
     return results

@@ -529,6 +529,31 @@ def test_a_parameter_forced_against_its_bound_is_flagged_and_not_detected(monkey
     assert json.loads(rep.to_json())["effects"][0]["at_bound"] == d["at_bound"]
 
 
+def test_a_saved_calibration_that_ends_at_a_bound_is_not_kept(monkeypatch):
+    """The saved chain's calibration on every record forced to put the detected drift's
+    gain at its range's bound (the accepted drift lies inside the range): the chain is
+    saved as accepted, and no detected effect is reported at a bound."""
+    import importlib
+
+    st = bv.make_stage(3, ("drift",))
+    recs = [{k: r[k] for k in "tuy"} for r in [st["train"], *st["holdouts"]]]
+    hi = diagnose(recs[0], recs[1:], progress=False, candidates=("drift",)).search_ranges["drift"]["gain_per_s"][1]
+    outcome = importlib.import_module("preisach.diagnose.outcome")
+    real = outcome.calibrate_slow
+
+    def to_bound(state, data, outputs=None):
+        cal = real(state, data, outputs)
+        cal.effects["drift"]["gain_per_s"] = hi
+        return cal
+
+    monkeypatch.setattr(outcome, "calibrate_slow", to_bound)
+    rep = diagnose(recs[0], recs[1:], progress=False, candidates=("drift",))
+    d = next(e for e in rep.effects if e["name"] == "drift")
+    assert d["detected"] and d["at_bound"] == []
+    g = Chain.from_dict(rep.augmented_chain_dict()).effects["drift"]["gain_per_s"]
+    assert g == pytest.approx(d["params"]["gain_per_s"]) and abs(g) < 0.99 * hi
+
+
 # ----------------------------------------------------------------- an honest none
 def test_summary_shows_each_shrink_against_the_chain_it_was_added_to():
     from preisach.diagnose.report import GapReport

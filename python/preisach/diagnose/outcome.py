@@ -93,8 +93,13 @@ def split(run: Run, found: Found) -> dict[str, Any]:
 def build_report(run: Run, found: Found, fl: Floors, where: list[dict[str, Any]], sig: dict[str, Any],
                  seconds: float) -> GapReport:
     """The saved chain's slow effects calibrated on every record (the further records the
-    user checks it on come later still), and the report."""
+    user checks it on come later still), and the report. A calibration that leaves a
+    detected effect at a search bound is not kept (an effect at a bound is not called
+    detected, and this one was accepted inside its ranges): the chain is saved as
+    accepted."""
     cal = calibrate_slow(found.cur, [(r, slice(None)) for r in run.recs])
+    if any(ends_at_bound(c, cal.effects[c], run.fitter.ranges) for c in found.accepted if c in cal.effects):
+        cal = found.cur
     final = export_state(cal)
     aug = Chain(final.model, final.effects) if run.base.kept is None else saved_chain(run.base.kept, cal)
     aug.sample_rate_hz = 1.0 / run.tr.dt  # the training record's: for per-sample runs (run_loop)

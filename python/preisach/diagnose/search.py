@@ -59,6 +59,10 @@ CREEP_PER_DECADE = 2
 #: constant the masses are fitted with, which decides how well the chain holds on other
 #: records (docs/method/diagnosis.md, "Creep's time constant from the held-out records").
 CREEP_HELD_STEPS = 3
+#: How much better (a share of the held-out RMSE) the midpoint to the grid's end must
+#: score than the end to move creep's search off it: the share an effect must shrink the
+#: holdouts' error by (``diagnose``'s default ``min_shrink``).
+CREEP_END_SHRINK = 0.10
 #: The amplitude of the creep chain ``Fitter.creep_held`` returns when no time constant
 #: beats no creep: a token the registry's rule calls trivial, which keeps the time constant.
 CREEP_TOKEN = 1e-4
@@ -729,8 +733,9 @@ class Fitter:
         ``Fitter.add`` passes the training error when there are none); then
         ``CREEP_HELD_STEPS`` parabolic steps on that score around the best time constant
         that fits the training record better than no creep (the others score as no
-        creep), kept when it scores better than no creep. The chain's own timing is
-        fitted first (:meth:`timing`)."""
+        creep; at the grid's end, the midpoint to its neighbour, kept when it scores
+        ``CREEP_END_SHRINK`` better), kept when it scores better than no creep. The
+        chain's own timing is fitted first (:meth:`timing`)."""
         bt = self.ranges["creep"]["tau"]
         slow = self.slow or self
         if "delay" not in eff:
@@ -763,6 +768,16 @@ class Fitter:
         # The steps refine the best time constant that carries creep (the others score as
         # no creep: a plateau that, best by a hair, would stop them at the grid's end).
         real = {x: v for x, v in known.items() if amps[x] > 0}
+        b = min(real, key=real.__getitem__)
+        if b in (grid[0], grid[-1]) and len(grid) > 1:
+            # At the grid's end the steps cannot start; the held-out score can be narrower
+            # than the grid's step, so the midpoint to the end's neighbour is tried. It
+            # counts when it beats the end as an effect must (flat scores leave the end,
+            # where the time constant is flagged at its bound).
+            mid = 0.5 * (b + (grid[1] if b == grid[0] else grid[-2]))
+            v = score(mid)
+            if amps[mid] > 0 and v < (1 - CREEP_END_SHRINK) * real[b]:
+                real[mid] = v
         lt, best = _parabolic_search(score, [], min(real), max(real), refine=CREEP_HELD_STEPS, expand=0, known=real)
         return chain(lt, amps[lt] if amps[lt] > 0 and best < none else CREEP_TOKEN)
 
