@@ -538,15 +538,15 @@ def test_a_saved_calibration_that_ends_at_a_bound_is_not_kept(monkeypatch):
     st = bv.make_stage(3, ("drift",))
     recs = [{k: r[k] for k in "tuy"} for r in [st["train"], *st["holdouts"]]]
     hi = diagnose(recs[0], recs[1:], progress=False, candidates=("drift",)).search_ranges["drift"]["gain_per_s"][1]
-    outcome = importlib.import_module("preisach.diagnose.outcome")
-    real = outcome.calibrate_slow
+    run_cls = importlib.import_module("preisach.diagnose.steps").Run
+    real = run_cls.on_every_record
 
-    def to_bound(state, data, outputs=None):
-        cal = real(state, data, outputs)
+    def to_bound(self, state):
+        cal = real(self, state)
         cal.effects["drift"]["gain_per_s"] = hi
         return cal
 
-    monkeypatch.setattr(outcome, "calibrate_slow", to_bound)
+    monkeypatch.setattr(run_cls, "on_every_record", to_bound)
     rep = diagnose(recs[0], recs[1:], progress=False, candidates=("drift",))
     d = next(e for e in rep.effects if e["name"] == "drift")
     assert d["detected"] and d["at_bound"] == []

@@ -8,9 +8,7 @@ from typing import Any
 from preisach.chain import Chain
 from preisach.diagnose.effects import FitState, export_state
 from preisach.diagnose.kept import saved_chain
-from preisach.diagnose.ranges import ends_at_bound
 from preisach.diagnose.report import GapReport, evidence_text
-from preisach.diagnose.search import calibrate_slow
 from preisach.diagnose.steps import Floors, Found, Run
 
 #: How the holdouts score the chains (the ``split`` report's ``note``).
@@ -52,7 +50,7 @@ def effect_entry(run: Run, found: Found, fl: Floors, c: str, cal: FitState, fina
         params = dict(d["params"])
     else:
         internal = cal if detected and c in cal.effects else d["state"]
-        at_bound = ends_at_bound(c, internal.effects[c], run.fitter.ranges)
+        at_bound = run.at_bound(c, internal)
         # A detected effect's parameters are those of the augmented chain (refitted after
         # it was accepted); a refused one's those of its own candidate fit.
         src = final if detected and c in final.effects else export_state(d["state"])
@@ -97,8 +95,8 @@ def build_report(run: Run, found: Found, fl: Floors, where: list[dict[str, Any]]
     detected effect at a search bound is not kept (an effect at a bound is not called
     detected, and this one was accepted inside its ranges): the chain is saved as
     accepted."""
-    cal = calibrate_slow(found.cur, [(r, slice(None)) for r in run.recs])
-    if any(ends_at_bound(c, cal.effects[c], run.fitter.ranges) for c in found.accepted if c in cal.effects):
+    cal = run.on_every_record(found.cur)
+    if any(run.at_bound(c, cal) for c in found.accepted):
         cal = found.cur
     final = export_state(cal)
     aug = Chain(final.model, final.effects) if run.base.kept is None else saved_chain(run.base.kept, cal)

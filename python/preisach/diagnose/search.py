@@ -769,7 +769,7 @@ class Fitter:
         # no creep: a plateau that, best by a hair, would stop them at the grid's end).
         real = {x: v for x, v in known.items() if amps[x] > 0}
         b = min(real, key=real.__getitem__)
-        if b in (grid[0], grid[-1]) and len(grid) > 1:
+        if b in (grid[0], grid[-1]):  # (the grid has three points or more)
             # At the grid's end the steps cannot start; the held-out score can be narrower
             # than the grid's step, so the midpoint to the end's neighbour is tried. It
             # counts when it beats the end as an effect must (flat scores leave the end,

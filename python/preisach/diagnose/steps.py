@@ -111,6 +111,15 @@ class Run:
         """The two folds' data: the training record whole and one half of each holdout."""
         return [[(self.tr, slice(None))] + [(h, hv[k]) for h, hv in zip(self.hos, self.halves)] for k in (0, 1)]
 
+    def on_every_record(self, st: FitState) -> FitState:
+        """``st`` with its slow effects calibrated on every record whole (the saved chain's)."""
+        return calibrate_slow(st, [(r, slice(None)) for r in self.recs])
+
+    def at_bound(self, c: str, st: FitState) -> list[str]:
+        """The parameters of effect ``c`` in ``st`` that ended at a search bound (none when
+        ``st`` has no ``c``)."""
+        return ends_at_bound(c, st.effects[c], self.fitter.ranges) if c in st.effects else []
+
     def holdout_errors(self, st: FitState) -> Errors:
         """Errors on each holdout. A chain with drift or creep has them recalibrated
         across records for each half of the holdouts, from the training record and the
@@ -533,22 +542,16 @@ def refusal(run: Run, found: Found, fl: Floors, c: str, res: Result, rnd: int,
         return "worsens part of a holdout"
     if trivial(c, st.effects[c], fl.scale):
         return "trivial parameters"
-    if ends_at_bound(c, st.effects[c], run.fitter.ranges):
-        return "at its search bound: " + "; ".join(ends_at_bound(c, st.effects[c], run.fitter.ranges))
-    if pair and (bounds := _pair_at_bound(run, c, st)):
-        return "at its search bound once calibrated on every record: " + bounds
+    if bounds := run.at_bound(c, st):
+        return "at its search bound: " + "; ".join(bounds)
+    if pair and (bounds := run.at_bound(c, run.on_every_record(st))):
+        # The pair is chosen across records and saved calibrated on every record, so it
+        # must hold within its ranges there too (a creep of ten record lengths at the
+        # largest amplitude stands in for the records' own levels, a session's offset).
+        return "at its search bound once calibrated on every record: " + "; ".join(bounds)
     if c == "lowpass" and lag.is_timing(run.score, st, sc, run.min_shrink, fl.accept, fl.scale.min_delay):
         return lag.TIMING
     return held_out_evidence(run, found, fl, c, st, sc, rival)
-
-
-def _pair_at_bound(run: Run, c: str, st: FitState) -> str:
-    """The pair is chosen across records and saved calibrated on every record, so it must
-    hold within its ranges there too (a creep of ten record lengths at the largest
-    amplitude stands in for the records' own levels, a session's offset): the bounds
-    ``c`` ends at once calibrated so, or ``""``."""
-    cal = calibrate_slow(st, [(r, slice(None)) for r in run.recs])
-    return "; ".join(ends_at_bound(c, cal.effects[c], run.fitter.ranges)) if c in cal.effects else ""
 
 
 def accept(run: Run, found: Found, fl: Floors, results: dict[str, Result], rnd: int) -> Optional[str]:
@@ -602,7 +605,7 @@ def accept_pairs(run: Run, found: Found, fl: Floors, best: str) -> None:
         found.tried[x]["refused"] = f"replaced in the fit of {best}"
     for x in found.cur.effects:
         if x not in found.accepted and x not in run.base.effects and not trivial(x, found.cur.effects[x], fl.scale) \
-                and not ends_at_bound(x, found.cur.effects[x], run.fitter.ranges) \
+                and not run.at_bound(x, found.cur) \
                 and not (x == "lowpass" and lag.is_timing(run.score, found.cur, found.score, run.min_shrink,
                                                           fl.accept, fl.scale.min_delay)):
             found.accepted.append(x)
@@ -975,9 +978,8 @@ def holdout_delay_step(run: Run, found: Found, fl: Floors) -> None:
     why = None
     if not passes(run, fl, sc0, sc) or sc_plain >= fl.hyst_alone:
         why = "no gain on the holdouts cross-fitted"
-    elif ends_at_bound("delay", xf["state"].effects["delay"], run.fitter.ranges):
-        why = "at its search bound: " + "; ".join(ends_at_bound("delay", xf["state"].effects["delay"],
-                                                                 run.fitter.ranges))
+    elif bounds := run.at_bound("delay", xf["state"]):
+        why = "at its search bound: " + "; ".join(bounds)
     if why is None:
         found.tried["delay"] = {"state": xf["state"], "rmse_after": sc, "rmse_current": sc0, "score": g,
                                 "round": len(found.accepted) + 1, "fitted_on": "holdouts"}
